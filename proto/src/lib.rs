@@ -1,0 +1,11 @@
+//! The contracts every dynforge process agrees on.
+//!
+//! Anything that crosses a process or file boundary (the label layout the trainer regresses, the per-link dynamic
+//! parameter layout, and later the job messages and the shard schema) is defined here exactly once, so that the
+//! generator, the worker, the shards and the trainer can never disagree about what column 17 means.
+
+pub mod labels;
+pub mod params;
+
+pub use labels::{LABELS, Label, LabelKind, NUM_LABELS};
+pub use params::{FRICTION_PARAMS_PER_JOINT, INERTIAL_PARAMS_PER_LINK, InertialParam};

@@ -1,0 +1,268 @@
+//! URDF in and out, via urdf-rs.
+//!
+//! Reading accepts any URDF whose moving joints form one serial chain of revolute/continuous joints from the root.
+//! Fixed joints are welded: a fixed subtree's inertia is merged into the moving link it hangs from (or into the base,
+//! where it never moves), so real-world files such as the UR5's (with `base`, `ee_link` and `tool0` frames) load.
+//! Anything else (prismatic, floating, planar joints; two moving branches) is rejected with the element's name.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use crate::model::{
+    Friction, Geometry, Inertial, Joint, JointKind, Limits, Link, Model, ModelError, ModelProblem, Pose, Shape,
+};
+use crate::spatial::{Inertia, Se3};
+
+/// Loads a model from a URDF file. Errors name the file and the offending element.
+pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
+    let path = path.as_ref();
+    let source = path.display().to_string();
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| ModelError { source_name: source.clone(), problem: ModelProblem::Io(e.to_string()) })?;
+    parse(&text, &source)
+}
+
+/// Parses URDF text; `source_name` labels errors (usually the file path).
+pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
+    let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    let robot = urdf_rs::read_from_string(text).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
+    build(&robot, source_name)
+}
+
+fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError> {
+    let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
+    let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
+    let mut has_parent: HashMap<&str, &str> = HashMap::new();
+    for j in &robot.joints {
+        for link in [&j.parent.link, &j.child.link] {
+            if !links.contains_key(link.as_str()) {
+                return Err(err(ModelProblem::UnknownLink { joint: j.name.clone(), link: link.clone() }));
+            }
+        }
+        if has_parent.insert(&j.child.link, &j.name).is_some() {
+            return Err(err(ModelProblem::MultipleParents { link: j.child.link.clone() }));
+        }
+        children.entry(&j.parent.link).or_default().push(j);
+    }
+    let roots: Vec<&str> =
+        robot.links.iter().map(|l| l.name.as_str()).filter(|l| !has_parent.contains_key(l)).collect();
+    if roots.len() != 1 {
+        return Err(err(ModelProblem::Roots(roots.len())));
+    }
+
+    // Walk the tree from the root. `body` is the moving link a URDF link is welded to (None: the fixed base) and
+    // `x` the URDF link's frame in that body's frame.
+    struct Moving {
+        joint: Joint,
+        link: Link,
+        welded: Inertia,
+        has_weld: bool,
+    }
+    let mut chain: Vec<Moving> = Vec::new();
+    let mut moving_child_of: HashMap<Option<usize>, String> = HashMap::new();
+    let mut stack: Vec<(&str, Option<usize>, Se3)> = vec![(roots[0], None, Se3::IDENTITY)];
+    while let Some((link_name, body, x)) = stack.pop() {
+        for j in children.get(link_name).map(Vec::as_slice).unwrap_or(&[]) {
+            let origin = Se3::from_xyz_rpy(*j.origin.xyz, *j.origin.rpy);
+            let child = links[j.child.link.as_str()];
+            match j.joint_type {
+                urdf_rs::JointType::Fixed => {
+                    let xc = x.compose(&origin);
+                    if let Some(b) = body {
+                        if child.inertial.mass.value > 0.0 {
+                            let i = convert_inertial(&child.inertial).spatial().transformed(&xc);
+                            chain[b].welded = chain[b].welded + i;
+                            chain[b].has_weld = true;
+                        }
+                    }
+                    stack.push((&j.child.link, body, xc));
+                }
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
+                    if let Some(other) = moving_child_of.insert(body, j.name.clone()) {
+                        let parent = body.map_or(roots[0].to_string(), |b| chain[b].link.name.clone());
+                        return Err(err(ModelProblem::Branching {
+                            link: parent,
+                            joints: format!("'{other}', '{}'", j.name),
+                        }));
+                    }
+                    let index = chain.len();
+                    if body.is_some_and(|b| b + 1 != index) || (body.is_none() && index != 0) {
+                        return Err(err(ModelProblem::Branching {
+                            link: j.parent.link.clone(),
+                            joints: format!("'{}' and an earlier branch", j.name),
+                        }));
+                    }
+                    // Keep the file's own numbers when no fixed joint sits in between: lossless round trips.
+                    let origin_pose = if x == Se3::IDENTITY {
+                        Pose { xyz: *j.origin.xyz, rpy: *j.origin.rpy }
+                    } else {
+                        Pose::from_se3(&x.compose(&origin))
+                    };
+                    chain.push(Moving {
+                        joint: convert_joint(j, origin_pose),
+                        link: convert_link(child),
+                        welded: Inertia::ZERO,
+                        has_weld: false,
+                    });
+                    stack.push((&j.child.link, Some(index), Se3::IDENTITY));
+                }
+                ref other => {
+                    return Err(err(ModelProblem::UnsupportedJoint {
+                        joint: j.name.clone(),
+                        kind: format!("{other:?}").to_lowercase(),
+                    }));
+                }
+            }
+        }
+    }
+
+    let mut joints = Vec::with_capacity(chain.len());
+    let mut out_links = Vec::with_capacity(chain.len());
+    for m in chain {
+        let mut link = m.link;
+        if m.has_weld {
+            let own = if link.inertial.mass > 0.0 { link.inertial.spatial() } else { Inertia::ZERO };
+            link.inertial = Inertial::from_spatial(&(own + m.welded));
+        }
+        joints.push(m.joint);
+        out_links.push(link);
+    }
+    Model::new(source_name, robot.name.clone(), roots[0], joints, out_links)
+}
+
+fn convert_inertial(i: &urdf_rs::Inertial) -> Inertial {
+    let t = &i.inertia;
+    Inertial {
+        origin: Pose { xyz: *i.origin.xyz, rpy: *i.origin.rpy },
+        mass: i.mass.value,
+        inertia: [t.ixx, t.ixy, t.ixz, t.iyy, t.iyz, t.izz],
+    }
+}
+
+fn convert_joint(j: &urdf_rs::Joint, origin: Pose) -> Joint {
+    let continuous = j.joint_type == urdf_rs::JointType::Continuous;
+    let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
+    let friction =
+        j.dynamics.as_ref().map_or(Friction::default(), |d| Friction { coulomb: d.friction, viscous: d.damping });
+    Joint {
+        name: j.name.clone(),
+        kind: if continuous { JointKind::Continuous } else { JointKind::Revolute },
+        origin,
+        axis: *j.axis.xyz,
+        limits: Limits { lower, upper, effort: j.limit.effort, velocity: j.limit.velocity },
+        friction,
+    }
+}
+
+fn convert_geometry(origin: &urdf_rs::Pose, g: &urdf_rs::Geometry) -> Geometry {
+    let shape = match g {
+        urdf_rs::Geometry::Box { size } => Shape::Box { size: **size },
+        urdf_rs::Geometry::Cylinder { radius, length } => Shape::Cylinder { radius: *radius, length: *length },
+        urdf_rs::Geometry::Capsule { radius, length } => Shape::Capsule { radius: *radius, length: *length },
+        urdf_rs::Geometry::Sphere { radius } => Shape::Sphere { radius: *radius },
+        urdf_rs::Geometry::Mesh { filename, scale } => {
+            Shape::Mesh { filename: filename.clone(), scale: scale.map(|s| *s) }
+        }
+    };
+    Geometry { origin: Pose { xyz: *origin.xyz, rpy: *origin.rpy }, shape }
+}
+
+fn convert_link(l: &urdf_rs::Link) -> Link {
+    Link {
+        name: l.name.clone(),
+        inertial: convert_inertial(&l.inertial),
+        visuals: l.visual.iter().map(|v| convert_geometry(&v.origin, &v.geometry)).collect(),
+        collisions: l.collision.iter().map(|c| convert_geometry(&c.origin, &c.geometry)).collect(),
+    }
+}
+
+fn pose(p: &Pose) -> urdf_rs::Pose {
+    urdf_rs::Pose { xyz: urdf_rs::Vec3(p.xyz), rpy: urdf_rs::Vec3(p.rpy) }
+}
+
+fn geometry(g: &Geometry) -> (urdf_rs::Pose, urdf_rs::Geometry) {
+    let geom = match &g.shape {
+        Shape::Box { size } => urdf_rs::Geometry::Box { size: urdf_rs::Vec3(*size) },
+        Shape::Cylinder { radius, length } => urdf_rs::Geometry::Cylinder { radius: *radius, length: *length },
+        Shape::Capsule { radius, length } => urdf_rs::Geometry::Capsule { radius: *radius, length: *length },
+        Shape::Sphere { radius } => urdf_rs::Geometry::Sphere { radius: *radius },
+        Shape::Mesh { filename, scale } => {
+            urdf_rs::Geometry::Mesh { filename: filename.clone(), scale: scale.map(urdf_rs::Vec3) }
+        }
+    };
+    (pose(&g.origin), geom)
+}
+
+/// Extra content for the base link of a written URDF (the model itself does not store the base's geometry).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BaseLink {
+    pub visuals: Vec<Geometry>,
+    pub collisions: Vec<Geometry>,
+}
+
+/// Writes a model as URDF text. Every parameter is written with round-trip precision, so [`parse`] of the result
+/// gives back an identical model.
+pub fn to_string(model: &Model, base: &BaseLink) -> String {
+    let visual = |g: &Geometry| {
+        let (origin, geometry) = geometry(g);
+        urdf_rs::Visual { name: None, origin, geometry, material: None }
+    };
+    let collision = |g: &Geometry| {
+        let (origin, geometry) = geometry(g);
+        urdf_rs::Collision { name: None, origin, geometry }
+    };
+    let mut links = vec![urdf_rs::Link {
+        name: model.base().to_string(),
+        // A fixed base needs no mass; write a tiny positive one because some loaders reject massless links.
+        inertial: urdf_rs::Inertial {
+            origin: urdf_rs::Pose::default(),
+            mass: urdf_rs::Mass { value: 1.0 },
+            inertia: urdf_rs::Inertia { ixx: 1e-3, ixy: 0.0, ixz: 0.0, iyy: 1e-3, iyz: 0.0, izz: 1e-3 },
+        },
+        visual: base.visuals.iter().map(visual).collect(),
+        collision: base.collisions.iter().map(collision).collect(),
+    }];
+    let mut joints = Vec::with_capacity(model.dof());
+    for (i, (j, l)) in model.joints().iter().zip(model.links()).enumerate() {
+        let [ixx, ixy, ixz, iyy, iyz, izz] = l.inertial.inertia;
+        links.push(urdf_rs::Link {
+            name: l.name.clone(),
+            inertial: urdf_rs::Inertial {
+                origin: pose(&l.inertial.origin),
+                mass: urdf_rs::Mass { value: l.inertial.mass },
+                inertia: urdf_rs::Inertia { ixx, ixy, ixz, iyy, iyz, izz },
+            },
+            visual: l.visuals.iter().map(visual).collect(),
+            collision: l.collisions.iter().map(collision).collect(),
+        });
+        let parent = if i == 0 { model.base().to_string() } else { model.links()[i - 1].name.clone() };
+        let lim = &j.limits;
+        joints.push(urdf_rs::Joint {
+            name: j.name.clone(),
+            joint_type: match j.kind {
+                JointKind::Revolute => urdf_rs::JointType::Revolute,
+                JointKind::Continuous => urdf_rs::JointType::Continuous,
+            },
+            origin: pose(&j.origin),
+            parent: urdf_rs::LinkName { link: parent },
+            child: urdf_rs::LinkName { link: l.name.clone() },
+            axis: urdf_rs::Axis { xyz: urdf_rs::Vec3(j.axis) },
+            limit: urdf_rs::JointLimit {
+                lower: lim.lower,
+                upper: lim.upper,
+                effort: lim.effort,
+                velocity: lim.velocity,
+                ..urdf_rs::JointLimit::default()
+            },
+            calibration: None,
+            dynamics: Some(urdf_rs::Dynamics { damping: j.friction.viscous, friction: j.friction.coulomb }),
+            mimic: None,
+            safety_controller: None,
+        });
+    }
+    let robot = urdf_rs::Robot { name: model.name().to_string(), version: None, links, joints, materials: vec![] };
+    // Serialising plain numbers and strings into a String cannot fail.
+    let body = urdf_rs::write_to_string(&robot).expect("URDF serialisation of a validated model");
+    format!("<?xml version=\"1.0\"?>\n{body}\n")
+}

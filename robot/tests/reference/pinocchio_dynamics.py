@@ -1,0 +1,49 @@
+"""Independent reference: evaluates Pinocchio's algorithms on a URDF for given states.
+
+Reads JSON from stdin: {"urdf": path, "states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}, ...]}
+Writes JSON to stdout: one entry per state with Pinocchio's rnea, aba, crba, nonlinear effects, the joint torque
+regressor and the LOCAL_WORLD_ALIGNED Jacobian of the last joint frame's origin.
+With --ur5, prints the path of the UR5 URDF shipped by example-robot-data instead.
+"""
+import json
+import pathlib
+import sys
+import sysconfig
+
+import numpy as np
+import pinocchio as pin
+
+
+def ur5_path() -> str:
+    prefix = pathlib.Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix"
+    return str(prefix / "share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf")
+
+
+def main() -> None:
+    if "--ur5" in sys.argv:
+        print(ur5_path())
+        return
+    request = json.load(sys.stdin)
+    model = pin.buildModelFromUrdf(request["urdf"])
+    data = model.createData()
+    last = model.njoints - 1
+    out = []
+    for s in request["states"]:
+        q, qd, qdd, tau = (np.array(s[k], dtype=float) for k in ("q", "qd", "qdd", "tau"))
+        entry = {
+            "rnea": pin.rnea(model, data, q, qd, qdd).tolist(),
+            "aba": pin.aba(model, data, q, qd, tau).tolist(),
+            "nle": pin.nonLinearEffects(model, data, q, qd).tolist(),
+        }
+        crba = pin.crba(model, data, q)
+        entry["crba"] = (np.triu(crba) + np.triu(crba, 1).T).tolist()  # crba fills only the upper triangle
+        entry["regressor"] = pin.computeJointTorqueRegressor(model, data, q, qd, qdd).tolist()
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        entry["jacobian"] = pin.getJointJacobian(model, data, last, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).tolist()
+        out.append(entry)
+    json.dump(out, sys.stdout)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,34 @@
+//! The `dynforge` command line: parses arguments and dispatches to the library crates.
+
+mod robot;
+
+use clap::{Parser, Subcommand};
+
+/// dynforge: learn the dynamic parameters of robot manipulators (mass, inertia, centre of mass, joint friction)
+/// from joint trajectories.
+#[derive(Parser)]
+#[command(name = "dynforge", version, about, long_about = None, propagate_version = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate a random robot of the dataset distribution as URDF, or inspect a URDF file.
+    Robot(robot::RobotArgs),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Robot(args) => robot::run(args),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

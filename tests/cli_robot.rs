@@ -1,0 +1,64 @@
+//! End-to-end tests of `dynforge robot`, spawning the real binary.
+
+use std::process::Command;
+
+use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::urdf;
+
+fn dynforge(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dynforge")).args(args).output().expect("dynforge runs")
+}
+
+#[test]
+fn robot_out_writes_a_urdf_that_loads_back_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("r.urdf");
+    let out = dynforge(&["robot", "--seed", "1", "--id", "7", "--out", path.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let loaded = urdf::load(&path).unwrap();
+    let want = generate(&GeneratorConfig::default(), 1, 7).unwrap();
+    assert_eq!(loaded, want.model);
+    // Only the URDF is left behind: no temporary file.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    // Without --out the same URDF goes to standard output.
+    let stdout = dynforge(&["robot", "--seed", "1", "--id", "7"]).stdout;
+    assert_eq!(String::from_utf8(stdout).unwrap(), std::fs::read_to_string(&path).unwrap());
+}
+
+#[test]
+fn inspect_prints_the_model_and_its_labels() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("r.urdf");
+    assert!(dynforge(&["robot", "--seed", "3", "--id", "2", "-o", path.to_str().unwrap()]).status.success());
+    let out = dynforge(&["robot", "--inspect", path.to_str().unwrap()]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let model = generate(&GeneratorConfig::default(), 3, 2).unwrap().model;
+    assert!(text.contains("6 revolute joints"), "{text}");
+    let mass_line = text.lines().find(|l| l.trim_start().starts_with("mass_l2")).expect("labels are printed");
+    let printed: f64 = mass_line.split_whitespace().nth(1).unwrap().parse().unwrap();
+    assert!((printed - model.inertia(1).mass).abs() < 1e-6, "{mass_line}");
+}
+
+#[test]
+fn bad_inputs_fail_with_a_message_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.urdf");
+    std::fs::write(&bad, "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='prismatic'><parent link='a'/><child link='b'/></joint></robot>").unwrap();
+    let out = dynforge(&["robot", "--inspect", bad.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("bad.urdf") && err.contains("'j'") && err.contains("prismatic"), "{err}");
+
+    let cfg = dir.path().join("gen.toml");
+    std::fs::write(&cfg, "tube_wall_fraction = [0.1, 0.7]\n").unwrap();
+    let out = dynforge(&["robot", "--config", cfg.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("gen.toml") && err.contains("tube_wall_fraction"), "{err}");
+
+    // An unwritable destination fails cleanly and leaves nothing behind.
+    let out = dynforge(&["robot", "--out", dir.path().join("missing/dir/r.urdf").to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8(out.stderr).unwrap().contains("missing/dir/r.urdf"));
+}
