@@ -13,6 +13,9 @@
 //! assert!(back.iter().zip(&qdd).all(|(a, b)| (a - b).abs() < 1e-9));
 //! ```
 
+// `!(a < b)` is deliberate in the validators: it also rejects NaN. Index loops mirror the algorithms' notation.
+#![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
+
 pub mod data;
 pub mod dynamics;
 pub mod generator;

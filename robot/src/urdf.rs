@@ -69,12 +69,12 @@ fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError>
             match j.joint_type {
                 urdf_rs::JointType::Fixed => {
                     let xc = x.compose(&origin);
-                    if let Some(b) = body {
-                        if child.inertial.mass.value > 0.0 {
-                            let i = convert_inertial(&child.inertial).spatial().transformed(&xc);
-                            chain[b].welded = chain[b].welded + i;
-                            chain[b].has_weld = true;
-                        }
+                    if let Some(b) = body
+                        && child.inertial.mass.value > 0.0
+                    {
+                        let i = convert_inertial(&child.inertial).spatial().transformed(&xc);
+                        chain[b].welded = chain[b].welded + i;
+                        chain[b].has_weld = true;
                     }
                     stack.push((&j.child.link, body, xc));
                 }

@@ -5,7 +5,7 @@ use nalgebra::{Vector3, Vector6};
 use crate::data::Data;
 use crate::kinematics::joint_transform;
 use crate::model::Model;
-use crate::spatial::{Force, Motion};
+use crate::spatial::{Force, Motion, transform_spatial_inertia};
 
 /// Joint accelerations `qdd = M^-1 (tau - C qd - G)` for the rigid-body torques `tau` (subtract friction first),
 /// into and returned from `data.ddq`.
@@ -40,8 +40,7 @@ pub fn aba<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], tau: &[
         if i > 0 {
             let ia_a = ia - u_vec * u_vec.transpose() * d_inv;
             let pa = data.art_bias[i] + ia_a * data.c[i].to_vector() + u_vec * (u * d_inv);
-            let x = data.li_m_i[i].inv_motion_matrix();
-            data.art_inertia[i - 1] += x.transpose() * ia_a * x;
+            data.art_inertia[i - 1] += transform_spatial_inertia(&ia_a, &data.li_m_i[i]);
             let pa_parent = data.li_m_i[i].act_force(&Force::from_vector(&pa));
             data.art_bias[i - 1] += pa_parent.to_vector();
         }
