@@ -306,6 +306,12 @@ impl Model {
 
     /// A copy with other link inertias and joint friction, e.g. an identified estimate. Validated like `new`.
     pub fn with_dynamics(&self, inertials: &[Inertial], friction: &[Friction]) -> Result<Model, ModelError> {
+        if inertials.len() != self.dof() || friction.len() != self.dof() {
+            return Err(ModelError {
+                source_name: format!("model '{}'", self.name),
+                problem: ModelProblem::Mismatch { joints: friction.len(), links: inertials.len() },
+            });
+        }
         let mut joints = self.joints.clone();
         let mut links = self.links.clone();
         for (j, f) in joints.iter_mut().zip(friction) {

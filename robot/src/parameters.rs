@@ -53,7 +53,12 @@ pub fn dynamic_parameters(model: &Model) -> Vec<f64> {
 /// A copy of `model` with the dynamic parameters `pi` (e.g. identified ones); rejected if not physical.
 pub fn with_dynamic_parameters(model: &Model, pi: &[f64]) -> Result<Model, ModelError> {
     let n = model.dof();
-    assert_eq!(pi.len(), num_params(n), "parameter vector has the wrong length");
+    if pi.len() != num_params(n) {
+        return Err(ModelError {
+            source_name: format!("model '{}'", model.name()),
+            problem: ModelProblem::Config(format!("{} dynamic parameters given, {} expected", pi.len(), num_params(n))),
+        });
+    }
     let inertials: Vec<Inertial> = (0..n)
         .map(|i| {
             let p: [f64; NI] = pi[NI * i..NI * (i + 1)].try_into().expect("10 parameters");

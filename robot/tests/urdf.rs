@@ -122,3 +122,19 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
     let e = urdf::load("/nonexistent/robot.urdf").unwrap_err();
     assert!(e.to_string().starts_with("/nonexistent/robot.urdf: "), "{e}");
 }
+
+#[test]
+fn parameter_vector_round_trips_through_the_model() {
+    use dynforge_robot::parameters::{dynamic_parameters, with_dynamic_parameters};
+    let model = robot(8).model;
+    let pi = dynamic_parameters(&model);
+    let back = with_dynamic_parameters(&model, &pi).unwrap();
+    let pi2 = dynamic_parameters(&back);
+    let worst = pi.iter().zip(&pi2).map(|(a, b)| (a - b).abs() / a.abs().max(1e-3)).fold(0.0, f64::max);
+    assert!(worst < 1e-12, "relative change {worst}");
+    // A non-physical estimate (negative mass of link 3) and a vector of the wrong size are errors, not panics.
+    let mut bad = pi.clone();
+    bad[20] = -1.0;
+    assert!(matches!(with_dynamic_parameters(&model, &bad).unwrap_err().problem, ModelProblem::InvalidInertia { .. }));
+    assert!(with_dynamic_parameters(&model, &pi[1..]).is_err());
+}
