@@ -1,9 +1,9 @@
 //! Scratch buffers for the algorithms, allocated once per model and reused (one `Data` per thread).
 
-use nalgebra::{DMatrix, Matrix6, Vector6};
+use nalgebra::DMatrix;
 
 use crate::model::Model;
-use crate::spatial::{Force, Inertia, Motion, Se3};
+use crate::spatial::{ArticulatedInertia, Force, Inertia, Motion, Se3};
 
 /// Per-call workspace and results. Fields hold the results of the last algorithm that wrote them.
 #[derive(Debug, Clone)]
@@ -29,12 +29,13 @@ pub struct Data {
     /// Geometric Jacobian `6 x dof`, rows: linear velocity (x, y, z) then angular velocity, in base axes.
     pub jacobian: DMatrix<f64>,
     pub(crate) composite: Vec<Inertia>,
-    pub(crate) art_inertia: Vec<Matrix6<f64>>,
-    pub(crate) art_bias: Vec<Vector6<f64>>,
-    pub(crate) u_vec: Vec<Vector6<f64>>,
+    pub(crate) art_inertia: Vec<ArticulatedInertia>,
+    pub(crate) art_bias: Vec<Force>,
+    pub(crate) u_vec: Vec<Force>,
     pub(crate) d_inv: Vec<f64>,
     pub(crate) u: Vec<f64>,
     pub(crate) c: Vec<Motion>,
+    pub(crate) s: Vec<Motion>,
 }
 
 impl Data {
@@ -52,12 +53,13 @@ impl Data {
             regressor: DMatrix::zeros(n, dynforge_proto::params::num_params(n)),
             jacobian: DMatrix::zeros(6, n),
             composite: vec![Inertia::ZERO; n],
-            art_inertia: vec![Matrix6::zeros(); n],
-            art_bias: vec![Vector6::zeros(); n],
-            u_vec: vec![Vector6::zeros(); n],
+            art_inertia: vec![ArticulatedInertia::default(); n],
+            art_bias: vec![Force::ZERO; n],
+            u_vec: vec![Force::ZERO; n],
             d_inv: vec![0.0; n],
             u: vec![0.0; n],
             c: vec![Motion::ZERO; n],
+            s: vec![Motion::ZERO; n],
         }
     }
 }
