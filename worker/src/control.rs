@@ -1,0 +1,100 @@
+//! The paper's per-joint gravity-aware PID:
+//! `u_i = (Kp_i + K_G |dz/dq_i|) e_i + Ki_i * integral(e_i) + Kd_i * de_i/dt`,
+//! where `dz/dq_i` is the z-row of the end effector's Jacobian: the stiffness rises where joint `i` lifts the end
+//! effector against gravity. The paper writes the signed element; its magnitude is used here because a negative
+//! value would lower the stiffness below `Kp` (and below zero for large `K_G`) exactly when the joint carries load.
+//!
+//! The error derivative uses the reference velocity (`de/dt = qd_ref - qd`), so reference changes give no
+//! derivative kick. Anti-windup: the integral is clamped so that `Ki * integral` never exceeds `windup_fraction` of
+//! the joint's torque limit, and it stops integrating while the output saturates in the error's direction. The
+//! output is clamped to the joint's effort limit; that clamped torque is what the motor applies and what is logged.
+//!
+//! Gains are scheduled on the joint-space inertia: joint `i` is a critically damped second-order loop of natural
+//! frequency `omega_i` for its current diagonal mass-matrix entry `M_ii(q)`, so `Kp = M_ii omega^2`,
+//! `Kd = 2 zeta M_ii omega`, `Ki = Kp omega * integral_ratio`. A fixed gain cannot serve this distribution: the base
+//! joint's inertia varies 1000x between a folded and a stretched arm (0.007-7 kg m^2), and a derivative gain stiff
+//! enough for the heavy case makes the discrete 1 kHz loop unstable for the light one (`Kd dt / I` must stay well
+//! under 2). The integral term is kept as a torque, so gain changes are bumpless.
+
+use serde::{Deserialize, Serialize};
+
+/// Controller tuning.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PidGains {
+    /// Closed-loop natural frequency per joint [rad/s].
+    pub omega: [f64; 6],
+    /// Smallest inertia the gains are scheduled on per joint [kg m^2]: light joints get the stiffness needed to
+    /// push through Coulomb friction, up to the discrete loop's stability bound (`2 zeta omega dt I_floor / I` < 1.5
+    /// for the lightest generated joint).
+    pub inertia_floor: [f64; 6],
+    /// Damping ratio.
+    pub zeta: f64,
+    /// Integral corner as a fraction of `omega`.
+    pub integral_ratio: f64,
+    /// Gravity-aware gain `K_G` as a fraction of `Kp`, per metre of end-effector height per radian.
+    pub kg_fraction: f64,
+    /// Largest share of the effort limit the integral term may hold.
+    pub windup_fraction: f64,
+}
+
+impl Default for PidGains {
+    fn default() -> Self {
+        PidGains {
+            omega: [20.0; 6],
+            inertia_floor: [0.2, 0.5, 0.2, 0.02, 0.004, 0.004],
+            zeta: 1.0,
+            integral_ratio: 0.5,
+            kg_fraction: 0.5,
+            windup_fraction: 0.7,
+        }
+    }
+}
+
+/// The controller state of one trajectory.
+#[derive(Debug, Clone)]
+pub struct Pid {
+    gains: PidGains,
+    effort: [f64; 6],
+    /// Integral term, as a torque.
+    integral: [f64; 6],
+}
+
+impl Pid {
+    /// A controller whose integral term starts at `hold` (e.g. the gravity torque of the start pose, so the arm
+    /// starts in equilibrium instead of sagging), within the anti-windup bound.
+    pub fn new(gains: PidGains, effort: [f64; 6], hold: [f64; 6]) -> Self {
+        let mut pid = Pid { gains, effort, integral: hold };
+        pid.clamp_integral();
+        pid
+    }
+
+    fn clamp_integral(&mut self) {
+        for j in 0..6 {
+            let max = self.gains.windup_fraction * self.effort[j];
+            self.integral[j] = self.integral[j].clamp(-max, max);
+        }
+    }
+
+    /// Torque command for errors `e = q_ref - q`, `ed = qd_ref - qd`, the end effector's `dz/dq` and the mass
+    /// matrix diagonal `m_diag`; then advances the integral by `dt`. Returns the saturated torque.
+    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dz_dq: &[f64; 6], m_diag: &[f64; 6], dt: f64) -> [f64; 6] {
+        let g = &self.gains;
+        let mut out = [0.0; 6];
+        for j in 0..6 {
+            let w = g.omega[j];
+            let inertia = m_diag[j].max(g.inertia_floor[j]);
+            let kp = inertia * w * w;
+            let kd = 2.0 * g.zeta * inertia * w;
+            let ki = kp * w * g.integral_ratio;
+            let raw = kp * (1.0 + g.kg_fraction * dz_dq[j].abs()) * e[j] + self.integral[j] + kd * ed[j];
+            out[j] = raw.clamp(-self.effort[j], self.effort[j]);
+            let saturated_along_error = out[j] != raw && raw.signum() == e[j].signum();
+            if !saturated_along_error {
+                self.integral[j] += ki * e[j] * dt;
+            }
+        }
+        self.clamp_integral();
+        out
+    }
+}

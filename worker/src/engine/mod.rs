@@ -1,0 +1,34 @@
+//! Simulation engines: one trait, so the controller, the failure checks and the logging are shared.
+
+mod native;
+
+pub use native::NativeEngine;
+
+use crate::trajectory::Config6;
+
+/// Which engine runs a job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EngineKind {
+    /// Featherstone ABA + RK4 with exact stick/slip Coulomb friction (this crate).
+    Native,
+}
+
+impl EngineKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            EngineKind::Native => "native",
+        }
+    }
+}
+
+/// A simulated arm advanced one control period at a time under a held motor torque.
+pub trait Engine {
+    fn kind(&self) -> EngineKind;
+    /// Puts the arm in state (`q`, `qd`).
+    fn reset(&mut self, q: &Config6, qd: &Config6);
+    /// Advances by one control period with the motor torque `tau` held constant (zero-order hold).
+    fn step(&mut self, tau: &Config6);
+    fn q(&self) -> &Config6;
+    fn qd(&self) -> &Config6;
+}

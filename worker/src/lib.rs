@@ -1,0 +1,11 @@
+//! dynforge's worker: turns one job (dataset seed, robot, trajectory, configuration) into a recording of 1 kHz joint
+//! data, or a discard with a reason.
+
+// Index loops over the six joints mirror the equations they implement.
+#![allow(clippy::needless_range_loop)]
+
+pub mod collision;
+pub mod control;
+pub mod engine;
+pub mod simulate;
+pub mod trajectory;

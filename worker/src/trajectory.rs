@@ -1,0 +1,176 @@
+//! Collision-free waypoints and the reference motions between them.
+//!
+//! Each robot gets 16 random joint-space waypoints (the paper's "16 workspace waypoints"), drawn inside the joint
+//! limits and accepted only if the robot, with its collision bodies grown by a safety margin, touches neither itself,
+//! its pedestal nor the ground there, and along the straight joint-space path from the previous waypoint. The 16
+//! waypoints form a closed tour (the path from the last back to the first is checked too), and trajectory `t` of the
+//! robot is the move from waypoint `t` to waypoint `t + 1 (mod 16)`: 16 trajectories per robot, as in the paper.
+//!
+//! A move follows a minimum-jerk reference `q0 + (q1 - q0) (10 s^3 - 15 s^4 + 6 s^5)`, `s = t / T`, whose duration
+//! `T` keeps every joint under a fraction of its speed limit (peak speed `1.875 |dq| / T`) and is at least
+//! `min_move` seconds; then the reference holds the goal for `hold` seconds. With the defaults a trajectory lasts at
+//! least 6 s, enough for a 64 x 64 ms window plus offsets.
+
+use dynforge_robot::generator::GeneratedRobot;
+use dynforge_robot::rng::{Rng, domain};
+use dynforge_robot::{Data, Model, forward_kinematics};
+use serde::{Deserialize, Serialize};
+
+use crate::collision::CollisionModel;
+
+/// Joint-space configuration of the 6-DOF arm.
+pub type Config6 = [f64; 6];
+
+/// How waypoints and moves are drawn.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrajectoryConfig {
+    /// Waypoints per robot = trajectories per robot.
+    pub waypoints: usize,
+    /// Clearance kept from every collision [m].
+    pub clearance: f64,
+    /// Waypoints stay this far inside the joint limits [rad].
+    pub limit_margin: f64,
+    /// Largest joint-space step between collision checks along a path [rad].
+    pub path_step: f64,
+    /// Peak joint speed of a move as a fraction of the joint's speed limit.
+    pub speed_fraction: f64,
+    /// Shortest move [s].
+    pub min_move: f64,
+    /// Time the goal is held after a move [s].
+    pub hold: f64,
+    /// Candidate draws per waypoint before giving up.
+    pub max_attempts: usize,
+}
+
+impl Default for TrajectoryConfig {
+    fn default() -> Self {
+        TrajectoryConfig {
+            waypoints: 16,
+            clearance: 0.02,
+            limit_margin: 0.15,
+            path_step: 0.02,
+            speed_fraction: 0.5,
+            min_move: 4.0,
+            hold: 2.0,
+            max_attempts: 2000,
+        }
+    }
+}
+
+/// Why no waypoints could be found.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("robot {robot}: no collision-free waypoint {waypoint} after {attempts} draws")]
+pub struct PlanError {
+    pub robot: u64,
+    pub waypoint: usize,
+    pub attempts: usize,
+}
+
+/// Checks configurations and straight joint-space paths against a collision model.
+pub struct PathChecker<'a> {
+    model: &'a Model,
+    data: Data,
+    collision: CollisionModel,
+    step: f64,
+}
+
+impl<'a> PathChecker<'a> {
+    pub fn new(robot: &'a GeneratedRobot, clearance: f64, step: f64) -> Self {
+        PathChecker {
+            model: &robot.model,
+            data: Data::new(&robot.model),
+            collision: CollisionModel::new(robot, clearance),
+            step,
+        }
+    }
+
+    pub fn config_free(&mut self, q: &Config6) -> bool {
+        forward_kinematics(self.model, &mut self.data, q);
+        self.collision.check(&self.data.o_m_i).is_none()
+    }
+
+    /// Both ends and every intermediate configuration no more than `step` apart (in the max norm) are free.
+    pub fn path_free(&mut self, a: &Config6, b: &Config6) -> bool {
+        let span = a.iter().zip(b).map(|(x, y)| (y - x).abs()).fold(0.0, f64::max);
+        let n = (span / self.step).ceil().max(1.0) as usize;
+        (0..=n).all(|k| {
+            let s = k as f64 / n as f64;
+            let q: Config6 = std::array::from_fn(|j| a[j] + s * (b[j] - a[j]));
+            self.config_free(&q)
+        })
+    }
+}
+
+/// The robot's waypoint tour, deterministic in (seed, robot id).
+pub fn waypoints(robot: &GeneratedRobot, seed: u64, cfg: &TrajectoryConfig) -> Result<Vec<Config6>, PlanError> {
+    let model = &robot.model;
+    let mut rng = Rng::stream(seed, &[domain::TRAJECTORY, robot.id]);
+    let mut checker = PathChecker::new(robot, cfg.clearance, cfg.path_step);
+    let draw = |rng: &mut Rng| -> Config6 {
+        std::array::from_fn(|j| {
+            let l = &model.joints()[j].limits;
+            let (lo, hi) = (l.lower.max(-std::f64::consts::PI), l.upper.min(std::f64::consts::PI));
+            rng.uniform(lo + cfg.limit_margin, hi - cfg.limit_margin)
+        })
+    };
+    let mut tour: Vec<Config6> = Vec::with_capacity(cfg.waypoints);
+    for k in 0..cfg.waypoints {
+        let last = k + 1 == cfg.waypoints;
+        let mut found = None;
+        for _ in 0..cfg.max_attempts {
+            let q = draw(&mut rng);
+            let ok = checker.config_free(&q)
+                && tour.last().is_none_or(|p| checker.path_free(p, &q))
+                && (!last || checker.path_free(&q, &tour[0]));
+            if ok {
+                found = Some(q);
+                break;
+            }
+        }
+        tour.push(found.ok_or(PlanError { robot: robot.id, waypoint: k, attempts: cfg.max_attempts })?);
+    }
+    Ok(tour)
+}
+
+/// One trajectory: a minimum-jerk move then a hold.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Move {
+    pub start: Config6,
+    pub goal: Config6,
+    /// Duration of the move [s].
+    pub duration: f64,
+    /// Hold at the goal afterwards [s].
+    pub hold: f64,
+}
+
+impl Move {
+    /// Trajectory `t` of a tour.
+    pub fn of_tour(model: &Model, tour: &[Config6], t: usize, cfg: &TrajectoryConfig) -> Move {
+        let (start, goal) = (tour[t % tour.len()], tour[(t + 1) % tour.len()]);
+        let needed = (0..6)
+            .map(|j| 1.875 * (goal[j] - start[j]).abs() / (cfg.speed_fraction * model.joints()[j].limits.velocity))
+            .fold(cfg.min_move, f64::max);
+        Move { start, goal, duration: needed, hold: cfg.hold }
+    }
+
+    /// Total duration [s].
+    pub fn total(&self) -> f64 {
+        self.duration + self.hold
+    }
+
+    /// Reference position, velocity and acceleration at time `t`.
+    pub fn reference(&self, t: f64) -> (Config6, Config6, Config6) {
+        let s = (t / self.duration).clamp(0.0, 1.0);
+        let moving = t < self.duration;
+        let p = s * s * s * (10.0 + s * (-15.0 + 6.0 * s));
+        let dp = if moving { 30.0 * s * s * (1.0 - s) * (1.0 - s) / self.duration } else { 0.0 };
+        let ddp = if moving { 60.0 * s * (1.0 - s) * (1.0 - 2.0 * s) / (self.duration * self.duration) } else { 0.0 };
+        let d: Config6 = std::array::from_fn(|j| self.goal[j] - self.start[j]);
+        (
+            std::array::from_fn(|j| self.start[j] + d[j] * p),
+            std::array::from_fn(|j| d[j] * dp),
+            std::array::from_fn(|j| d[j] * ddp),
+        )
+    }
+}

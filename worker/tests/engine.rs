@@ -1,0 +1,131 @@
+//! The native engine against physics: energy conservation, stick/slip, and inverse dynamics of its own output.
+
+use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
+use dynforge_robot::model::Friction;
+use dynforge_robot::{Data, crba, energy, friction_torque, gravity_torque, rnea};
+use dynforge_worker::engine::{Engine, NativeEngine};
+use dynforge_worker::simulate::{SimConfig, simulate};
+use dynforge_worker::trajectory::{Move, waypoints};
+
+fn robot(id: u64) -> GeneratedRobot {
+    generate(&GeneratorConfig::default(), 5, id).unwrap()
+}
+
+fn frictionless(r: &GeneratedRobot) -> dynforge_robot::Model {
+    let inertials: Vec<_> = r.model.links().iter().map(|l| l.inertial).collect();
+    r.model.with_dynamics(&inertials, &[Friction::default(); 6]).unwrap()
+}
+
+/// Largest |E(t) - E(0)| over a free swing of `seconds`, relative to the peak kinetic energy.
+fn swing_drift(model: &dynforge_robot::Model, dt: f64, seconds: f64) -> f64 {
+    let mut engine = NativeEngine::new(model, dt);
+    let mut data = Data::new(model);
+    let q0 = [0.3, 0.9, -0.7, 1.1, 0.4, -0.8];
+    let qd0 = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5];
+    engine.reset(&q0, &qd0);
+    let e0 = energy(model, &mut data, &q0, &qd0).total();
+    let (mut drift, mut peak_kinetic) = (0.0f64, 0.0f64);
+    for _ in 0..(seconds / dt).round() as usize {
+        engine.step(&[0.0; 6]);
+        let e = energy(model, &mut data, engine.q(), engine.qd());
+        drift = drift.max((e.total() - e0).abs());
+        peak_kinetic = peak_kinetic.max(e.kinetic);
+    }
+    drift / peak_kinetic
+}
+
+#[test]
+fn free_swing_conserves_energy_at_fourth_order() {
+    // RK4's global error is O(h^4): halving the step must shrink the energy drift ~16x (>= 8x allowing for the
+    // chaotic swing and rounding), and at the 1 ms production step the drift over 10 s must stay below 1e-4 of the
+    // peak kinetic energy (the target).
+    let model = frictionless(&robot(2));
+    let coarse = swing_drift(&model, 1e-3, 10.0);
+    let fine = swing_drift(&model, 5e-4, 10.0);
+    assert!(coarse < 1e-4, "drift {coarse:e} over 10 s at 1 ms");
+    assert!(coarse / fine > 8.0, "drift ratio {} (coarse {coarse:e}, fine {fine:e}) is not 4th order", coarse / fine);
+}
+
+#[test]
+fn stiction_holds_below_the_coulomb_limit_and_breaks_away_above() {
+    let r = robot(3);
+    let model = &r.model;
+    let mut data = Data::new(model);
+    let q0 = [0.2, 0.6, -0.9, 0.7, 0.3, -0.4];
+    let g = gravity_torque(model, &mut data, &q0).to_vec();
+    let mu5 = model.joints()[5].friction.coulomb;
+    let mut engine = NativeEngine::new(model, 1e-3);
+
+    // Exactly the holding torque, then 90 % of the Coulomb limit on top of it at joint 5: nothing may move at all.
+    for extra in [0.0, 0.9 * mu5, -0.9 * mu5] {
+        engine.reset(&q0, &[0.0; 6]);
+        let mut tau: [f64; 6] = std::array::from_fn(|j| g[j]);
+        tau[5] += extra;
+        for _ in 0..500 {
+            engine.step(&tau);
+        }
+        assert_eq!(engine.q(), &q0, "extra {extra}");
+        assert_eq!(engine.qd(), &[0.0; 6], "extra {extra}");
+    }
+
+    // 110 % of the limit: joint 5 breaks away in the push direction. With the other joints held (their needed
+    // friction is far below their limits) it is a 1-DOF system M_55 v' = 0.1 mu_c - mu_v v over the first period
+    // (velocity-product terms are O(v^2), negligible from rest), so v(dt) = F / mu_v (1 - exp(-mu_v dt / M_55)).
+    engine.reset(&q0, &[0.0; 6]);
+    let mut tau: [f64; 6] = std::array::from_fn(|j| g[j]);
+    tau[5] += 1.1 * mu5;
+    engine.step(&tau);
+    let m55 = crba(model, &mut data, &q0)[(5, 5)];
+    let mu_v = model.joints()[5].friction.viscous;
+    let expected = 0.1 * mu5 / mu_v * (1.0 - (-mu_v * 1e-3 / m55).exp());
+    let got = engine.qd()[5];
+    assert!(got > 0.0 && ((got - expected) / expected).abs() < 1e-3, "qd5 {got} vs {expected}");
+    assert_eq!(&engine.qd()[..5], &[0.0; 5]);
+}
+
+#[test]
+fn logged_torque_matches_inverse_dynamics_of_the_logged_motion() {
+    // Sample k holds the state at t_k and the torque held over [t_k, t_k+1]. The mean acceleration over the period
+    // is (qd_k+1 - qd_k) / dt; RNEA at the midpoint state plus friction reproduces the torque up to the midpoint
+    // rule's O(dt^2) error, (omega dt)^2 / 24 ~ 1e-5 for the ~20 rad/s closed loop. Samples where a joint sticks or
+    // reverses are excluded: there the friction torque is not sign(qd) mu_c.
+    let r = robot(4);
+    let cfg = SimConfig::default();
+    let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
+    let mv = Move::of_tour(&r.model, &tour, 0, &cfg.trajectory);
+    let rec = simulate(&r, &mv, &cfg).expect("the run completes");
+    let model = &r.model;
+    let mut data = Data::new(model);
+    let (mut err2, mut ref2, mut used) = (0.0, 0.0, 0);
+    let mut fric = [0.0; 6];
+    for k in 0..rec.len() - 1 {
+        let (v0, v1) = (&rec.qd[k], &rec.qd[k + 1]);
+        if (0..6).any(|j| v0[j] * v1[j] <= 0.0) {
+            continue;
+        }
+        let qm: Vec<f64> = (0..6).map(|j| 0.5 * (rec.q[k][j] + rec.q[k + 1][j])).collect();
+        let vm: Vec<f64> = (0..6).map(|j| 0.5 * (v0[j] + v1[j])).collect();
+        let acc: Vec<f64> = (0..6).map(|j| (v1[j] - v0[j]) / rec.dt).collect();
+        let tau = rnea(model, &mut data, &qm, &vm, &acc).to_vec();
+        friction_torque(model, &vm, &mut fric);
+        for j in 0..6 {
+            err2 += (tau[j] + fric[j] - rec.tau[k][j]).powi(2);
+            ref2 += rec.tau[k][j].powi(2);
+        }
+        used += 1;
+    }
+    assert!(used > rec.len() / 4, "only {used} of {} samples slide on every joint", rec.len());
+    let rel = (err2 / ref2).sqrt();
+    assert!(rel < 1e-3, "relative RMS torque residual {rel:e} over {used} samples");
+}
+
+#[test]
+fn same_job_gives_bit_identical_recordings() {
+    let r = robot(6);
+    let cfg = SimConfig::default();
+    let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
+    let mv = Move::of_tour(&r.model, &tour, 3, &cfg.trajectory);
+    let a = simulate(&r, &mv, &cfg);
+    let b = simulate(&r, &mv, &cfg);
+    assert_eq!(a, b);
+}
