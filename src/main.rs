@@ -1,6 +1,7 @@
 //! The `dynforge` command line: parses arguments and dispatches to the library crates.
 
 mod robot;
+mod simulate;
 
 use clap::{Parser, Subcommand};
 
@@ -17,12 +18,15 @@ struct Cli {
 enum Command {
     /// Generate a random robot of the dataset distribution as URDF, or inspect a URDF file.
     Robot(robot::RobotArgs),
+    /// Simulate one job (robot x trajectory) by hand and write its shard.
+    Simulate(simulate::SimulateArgs),
 }
 
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Robot(args) => robot::run(args),
+        Command::Simulate(args) => simulate::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -6,6 +6,7 @@
 
 pub mod labels;
 pub mod params;
+pub mod shard;
 
 pub use labels::{LABELS, Label, LabelKind, NUM_LABELS};
 pub use params::{FRICTION_PARAMS_PER_JOINT, INERTIAL_PARAMS_PER_LINK, InertialParam};

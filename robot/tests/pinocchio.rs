@@ -1,13 +1,9 @@
 //! Our dynamics against Pinocchio (an independent C++ implementation) on the UR5 URDF shipped by the PyPI package
 //! example-robot-data and on generated robots.
 //!
-//! Needs the reference venv: `scripts/test.sh` creates it and sets DYNFORGE_PYTHON. Without it the test reports
-//! that it was skipped, unless DYNFORGE_REQUIRE_REFERENCE=1 (set by the test script), where that is an error.
+//! Needs the reference venv (see `dynforge_testkit::reference_python`).
 
 mod common;
-
-use std::io::Write;
-use std::process::{Command, Stdio};
 
 use common::{random_state, robot};
 use dynforge_proto::params::INERTIAL_PARAMS_PER_LINK as NI;
@@ -20,31 +16,8 @@ use serde_json::{Value, json};
 
 const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/reference/pinocchio_dynamics.py");
 
-fn python() -> Option<String> {
-    match std::env::var("DYNFORGE_PYTHON") {
-        Ok(p) => Some(p),
-        Err(_) if std::env::var("DYNFORGE_REQUIRE_REFERENCE").is_ok_and(|v| v == "1") => {
-            panic!("DYNFORGE_REQUIRE_REFERENCE=1 but DYNFORGE_PYTHON is not set")
-        }
-        Err(_) => {
-            eprintln!("SKIPPED: Pinocchio reference needs DYNFORGE_PYTHON (scripts/test.sh sets it)");
-            None
-        }
-    }
-}
-
 fn run_python(py: &str, args: &[&str], stdin: &str) -> String {
-    let mut child = Command::new(py)
-        .arg(SCRIPT)
-        .args(args)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("python starts");
-    child.stdin.take().unwrap().write_all(stdin.as_bytes()).unwrap();
-    let out = child.wait_with_output().unwrap();
-    assert!(out.status.success(), "reference script failed");
-    String::from_utf8(out.stdout).unwrap()
+    dynforge_testkit::run_python(py, std::path::Path::new(SCRIPT), args, stdin)
 }
 
 fn vec(v: &Value) -> Vec<f64> {
@@ -113,7 +86,7 @@ fn compare(py: &str, model: &Model, urdf_path: &str, seed: u64) {
 
 #[test]
 fn matches_pinocchio_on_the_ur5_of_example_robot_data() {
-    let Some(py) = python() else { return };
+    let Some(py) = dynforge_testkit::reference_python() else { return };
     let path = run_python(&py, &["--ur5"], "").trim().to_string();
     let model = urdf::load(&path).expect("the UR5 URDF loads");
     assert_eq!(model.dof(), 6);
@@ -124,7 +97,7 @@ fn matches_pinocchio_on_the_ur5_of_example_robot_data() {
 
 #[test]
 fn matches_pinocchio_on_generated_robots() {
-    let Some(py) = python() else { return };
+    let Some(py) = dynforge_testkit::reference_python() else { return };
     let dir = tempfile::tempdir().unwrap();
     for id in [0, 17, 99] {
         let r = robot(id);

@@ -7,5 +7,6 @@
 pub mod collision;
 pub mod control;
 pub mod engine;
+pub mod job;
 pub mod simulate;
 pub mod trajectory;

@@ -59,6 +59,8 @@ pub enum Discard {
     Collision { contact: Contact, t: f64 },
     #[error("joint {joint} ended {error:.4} rad from the goal (waypoint timeout)")]
     Timeout { joint: usize, error: f64 },
+    #[error("{0}")]
+    Planning(String),
 }
 
 impl Discard {
@@ -71,6 +73,7 @@ impl Discard {
             Discard::JointLimit { .. } => "joint_limit",
             Discard::Collision { .. } => "collision",
             Discard::Timeout { .. } => "timeout",
+            Discard::Planning(_) => "planning",
         }
     }
 }

@@ -1,0 +1,225 @@
+//! The shard contract: what a dataset shard (an MCAP file) holds, in the same form `ros2 bag record` writes, so one
+//! reader serves our shards and a real robot's bags.
+//!
+//! - `/joint_states`: `sensor_msgs/msg/JointState`, CDR, one message per sample (1 kHz), stamped with sim time; the
+//!   effort is the motor torque applied over the following period.
+//! - `/robot_description`: `std_msgs/msg/String` holding the robot's URDF (as Foxglove expects), one message at t=0.
+//! - Metadata records: [`META_JOB`] (job identity), [`META_LABELS`] (the 38 labels by name),
+//!   [`META_TRAJECTORY`] (start/goal and the move/hold boundaries).
+//!
+//! The CDR codec below is plain little-endian XCDR1: a 4-byte encapsulation header `00 01 00 00`, then every
+//! primitive aligned to its own size counted from the end of that header; strings are a `u32` length including a
+//! trailing NUL, the bytes, and the NUL; sequences are a `u32` count then the elements.
+
+pub const TOPIC_JOINT_STATES: &str = "/joint_states";
+pub const TOPIC_ROBOT_DESCRIPTION: &str = "/robot_description";
+pub const SCHEMA_JOINT_STATE: &str = "sensor_msgs/msg/JointState";
+pub const SCHEMA_STRING: &str = "std_msgs/msg/String";
+pub const SCHEMA_ENCODING: &str = "ros2msg";
+pub const MESSAGE_ENCODING: &str = "cdr";
+/// MCAP profile, as rosbag2 writes it.
+pub const PROFILE: &str = "ros2";
+/// The writer's library string (fixed, so shards stay byte-identical across dependency upgrades).
+pub const LIBRARY: &str = "dynforge-shard/1";
+
+/// Full `ros2msg` definition of `sensor_msgs/msg/JointState` with its dependencies, as rosbag2 stores it.
+pub const JOINT_STATE_DEFINITION: &str = include_str!("schemas/sensor_msgs_JointState.ros2msg");
+/// `ros2msg` definition of `std_msgs/msg/String`.
+pub const STRING_DEFINITION: &str = include_str!("schemas/std_msgs_String.ros2msg");
+
+/// Metadata record holding the job identity: `seed`, `robot`, `trajectory`, `engine`, `dt`, `generator_version`,
+/// `dynforge_version`.
+pub const META_JOB: &str = "dynforge.job";
+/// Metadata record holding the 38 labels, keyed by [`crate::LABELS`] names, values in Rust's round-trip `{}` format.
+pub const META_LABELS: &str = "dynforge.labels";
+/// Metadata record holding the trajectory: `start`, `goal` (space-separated radians), `move_end`, `hold_end` [s].
+pub const META_TRAJECTORY: &str = "dynforge.trajectory";
+/// Version of this shard layout.
+pub const SHARD_VERSION: u32 = 1;
+
+/// One `sensor_msgs/msg/JointState` message.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct JointState {
+    pub sec: i32,
+    pub nanosec: u32,
+    pub frame_id: String,
+    pub name: Vec<String>,
+    pub position: Vec<f64>,
+    pub velocity: Vec<f64>,
+    pub effort: Vec<f64>,
+}
+
+impl JointState {
+    /// Stamp in nanoseconds.
+    pub fn stamp_ns(&self) -> i64 {
+        self.sec as i64 * 1_000_000_000 + self.nanosec as i64
+    }
+}
+
+/// A malformed CDR message.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("malformed CDR message: {0}")]
+pub struct CdrError(pub String);
+
+const ENCAPSULATION_LE: [u8; 4] = [0, 1, 0, 0];
+
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn new(capacity: usize) -> Self {
+        let mut v = Vec::with_capacity(capacity);
+        v.extend_from_slice(&ENCAPSULATION_LE);
+        Writer(v)
+    }
+    fn align(&mut self, n: usize) {
+        while !(self.0.len() - 4).is_multiple_of(n) {
+            self.0.push(0);
+        }
+    }
+    fn u32(&mut self, v: u32) {
+        self.align(4);
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn string(&mut self, s: &str) {
+        self.u32(s.len() as u32 + 1);
+        self.0.extend_from_slice(s.as_bytes());
+        self.0.push(0);
+    }
+    fn f64s(&mut self, v: &[f64]) {
+        self.u32(v.len() as u32);
+        if !v.is_empty() {
+            self.align(8);
+        }
+        for x in v {
+            self.0.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+}
+
+struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn new(buf: &'a [u8]) -> Result<Self, CdrError> {
+        match buf.get(..4) {
+            Some(h) if h[0] == 0 && h[1] == 1 => Ok(Reader { buf, pos: 4 }),
+            Some(h) => Err(CdrError(format!("unsupported encapsulation {h:02x?} (only little-endian CDR)"))),
+            None => Err(CdrError("shorter than the encapsulation header".into())),
+        }
+    }
+    fn align(&mut self, n: usize) {
+        self.pos += (n - (self.pos - 4) % n) % n;
+    }
+    fn take(&mut self, n: usize) -> Result<&'a [u8], CdrError> {
+        let end = self.pos.checked_add(n).filter(|&e| e <= self.buf.len());
+        let end = end.ok_or_else(|| CdrError(format!("truncated at byte {} (needs {n} more)", self.pos)))?;
+        let out = &self.buf[self.pos..end];
+        self.pos = end;
+        Ok(out)
+    }
+    fn u32(&mut self) -> Result<u32, CdrError> {
+        self.align(4);
+        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
+    }
+    fn string(&mut self) -> Result<String, CdrError> {
+        let n = self.u32()? as usize;
+        let bytes = self.take(n)?;
+        let text = bytes.strip_suffix(&[0]).unwrap_or(bytes);
+        String::from_utf8(text.to_vec()).map_err(|e| CdrError(format!("string is not UTF-8: {e}")))
+    }
+    fn f64s(&mut self) -> Result<Vec<f64>, CdrError> {
+        let n = self.u32()? as usize;
+        if n > 0 {
+            self.align(8);
+        }
+        let bytes = self.take(n.checked_mul(8).ok_or_else(|| CdrError("sequence too long".into()))?)?;
+        Ok(bytes.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))).collect())
+    }
+}
+
+/// Encodes a JointState as CDR.
+pub fn encode_joint_state(m: &JointState) -> Vec<u8> {
+    let mut w = Writer::new(64 + m.name.iter().map(|n| n.len() + 8).sum::<usize>() + 24 * m.position.len() + 16);
+    w.u32(m.sec as u32);
+    w.u32(m.nanosec);
+    w.string(&m.frame_id);
+    w.u32(m.name.len() as u32);
+    for n in &m.name {
+        w.string(n);
+    }
+    w.f64s(&m.position);
+    w.f64s(&m.velocity);
+    w.f64s(&m.effort);
+    w.0
+}
+
+/// Decodes a CDR JointState.
+pub fn decode_joint_state(buf: &[u8]) -> Result<JointState, CdrError> {
+    let mut r = Reader::new(buf)?;
+    let sec = r.u32()? as i32;
+    let nanosec = r.u32()?;
+    let frame_id = r.string()?;
+    let count = r.u32()? as usize;
+    if count > buf.len() {
+        return Err(CdrError(format!("{count} joint names cannot fit in {} bytes", buf.len())));
+    }
+    let name = (0..count).map(|_| r.string()).collect::<Result<_, _>>()?;
+    Ok(JointState { sec, nanosec, frame_id, name, position: r.f64s()?, velocity: r.f64s()?, effort: r.f64s()? })
+}
+
+/// Encodes a `std_msgs/msg/String`.
+pub fn encode_string(s: &str) -> Vec<u8> {
+    let mut w = Writer::new(s.len() + 9);
+    w.string(s);
+    w.0
+}
+
+/// Decodes a `std_msgs/msg/String`.
+pub fn decode_string(buf: &[u8]) -> Result<String, CdrError> {
+    Reader::new(buf)?.string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn joint_state_bytes_follow_the_cdr_alignment_rules() {
+        // Worked example: frame "base" (5 bytes with NUL) leaves the name count at offset 24; "j0\0" and "j1\0" are
+        // padded to 4; the position count sits at 44 and its doubles are aligned to 8 from the header's end (48 -> 52).
+        let m = JointState {
+            sec: 1,
+            nanosec: 500,
+            frame_id: "base".into(),
+            name: vec!["j0".into(), "j1".into()],
+            position: vec![1.0, 2.0],
+            velocity: vec![],
+            effort: vec![0.5, -0.5],
+        };
+        let b = encode_joint_state(&m);
+        assert_eq!(b.len(), 92);
+        assert_eq!(&b[..12], &[0, 1, 0, 0, 1, 0, 0, 0, 0xf4, 1, 0, 0]);
+        assert_eq!(&b[12..24], &[5, 0, 0, 0, b'b', b'a', b's', b'e', 0, 0, 0, 0]);
+        assert_eq!(&b[44..52], &[2, 0, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(&b[52..60], &1.0f64.to_le_bytes());
+        assert_eq!(&b[68..76], &[0, 0, 0, 0, 2, 0, 0, 0]);
+        assert_eq!(&b[84..92], &(-0.5f64).to_le_bytes());
+        assert_eq!(decode_joint_state(&b).unwrap(), m);
+    }
+
+    #[test]
+    fn strings_round_trip_and_bad_input_is_an_error() {
+        let b = encode_string("hi");
+        assert_eq!(b, [0, 1, 0, 0, 3, 0, 0, 0, b'h', b'i', 0]);
+        assert_eq!(decode_string(&b).unwrap(), "hi");
+        assert!(decode_string(&b[..6]).is_err());
+        assert!(decode_string(&[0, 0, 0, 0, 1, 0, 0, 0]).is_err(), "big-endian is refused");
+        let m = JointState { name: vec!["a".into(); 6], position: vec![0.1; 6], ..Default::default() };
+        let full = encode_joint_state(&m);
+        for cut in 0..full.len() {
+            assert!(decode_joint_state(&full[..cut]).is_err(), "cut at {cut}");
+        }
+    }
+}

@@ -1,0 +1,170 @@
+//! MCAP shards: writing dynforge's (atomically, byte-reproducibly) and reading them back, together with any
+//! ROS 2 bag that carries `sensor_msgs/msg/JointState` on `/joint_states` (the layout is in
+//! [`dynforge_proto::shard`]).
+
+use std::collections::BTreeMap;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::shard::{self as contract, JointState};
+
+/// Metadata records: record name -> key -> value.
+pub type Metadata = BTreeMap<String, BTreeMap<String, String>>;
+
+/// What can go wrong with a shard; always names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ShardError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: not a readable MCAP file: {message}")]
+    Mcap { path: PathBuf, message: String },
+    #[error("{path}: {message}")]
+    Content { path: PathBuf, message: String },
+}
+
+/// Zstd chunks of about a quarter second of 1 kHz joint states.
+const CHUNK_SIZE: u64 = 64 * 1024;
+
+/// One shard's content to write.
+pub struct ShardContent<'a> {
+    pub urdf: &'a str,
+    /// The joint-state messages, in time order.
+    pub joint_states: &'a [JointState],
+    pub metadata: &'a Metadata,
+}
+
+fn io_err(path: &Path) -> impl Fn(std::io::Error) -> ShardError + '_ {
+    move |source| ShardError::Io { path: path.to_path_buf(), source }
+}
+
+fn mcap_err(path: &Path) -> impl Fn(mcap::McapError) -> ShardError + '_ {
+    move |e| ShardError::Mcap { path: path.to_path_buf(), message: e.to_string() }
+}
+
+/// Writes a shard to `path` atomically: a temporary file in the same directory, fsync, rename, fsync of the
+/// directory. The file either appears whole or not at all; the same content always gives the same bytes.
+pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name =
+        path.file_name().ok_or_else(|| ShardError::Content { path: path.into(), message: "not a file path".into() })?;
+    let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let result = write_file(&tmp, content).and_then(|()| {
+        std::fs::rename(&tmp, path).map_err(io_err(path))?;
+        // Make the rename itself durable.
+        std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(io_err(dir))
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
+    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let me = mcap_err(path);
+    let mut w = mcap::WriteOptions::new()
+        .profile(contract::PROFILE)
+        .library(contract::LIBRARY)
+        .compression(Some(mcap::Compression::Zstd))
+        .chunk_size(Some(CHUNK_SIZE))
+        .compression_threads(0)
+        .create(BufWriter::new(file))
+        .map_err(&me)?;
+    // rosbag2 parses this key; an empty value means "no QoS profiles recorded".
+    let channel_meta = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
+    let string_schema = w
+        .add_schema(contract::SCHEMA_STRING, contract::SCHEMA_ENCODING, contract::STRING_DEFINITION.as_bytes())
+        .map_err(&me)?;
+    let description = w
+        .add_channel(string_schema, contract::TOPIC_ROBOT_DESCRIPTION, contract::MESSAGE_ENCODING, &channel_meta)
+        .map_err(&me)?;
+    let js_schema = w
+        .add_schema(
+            contract::SCHEMA_JOINT_STATE,
+            contract::SCHEMA_ENCODING,
+            contract::JOINT_STATE_DEFINITION.as_bytes(),
+        )
+        .map_err(&me)?;
+    let joints = w
+        .add_channel(js_schema, contract::TOPIC_JOINT_STATES, contract::MESSAGE_ENCODING, &channel_meta)
+        .map_err(&me)?;
+    let t0 = content.joint_states.first().map_or(0, |m| m.stamp_ns().max(0) as u64);
+    let header = |channel_id, sequence, time| mcap::records::MessageHeader {
+        channel_id,
+        sequence,
+        log_time: time,
+        publish_time: time,
+    };
+    w.write_to_known_channel(&header(description, 0, t0), &contract::encode_string(content.urdf)).map_err(&me)?;
+    for (k, m) in content.joint_states.iter().enumerate() {
+        let t = m.stamp_ns().max(0) as u64;
+        w.write_to_known_channel(&header(joints, k as u32, t), &contract::encode_joint_state(m)).map_err(&me)?;
+    }
+    for (name, map) in content.metadata {
+        w.write_metadata(&mcap::records::Metadata { name: name.clone(), metadata: map.clone() }).map_err(&me)?;
+    }
+    w.finish().map_err(&me)?;
+    let file = w.into_inner().into_inner().map_err(|e| io_err(path)(e.into_error()))?;
+    file.sync_all().map_err(io_err(path))
+}
+
+/// A decoded bag or shard.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Bag {
+    /// The last `/robot_description` message, if any.
+    pub robot_description: Option<String>,
+    /// Every `/joint_states` message, in file order.
+    pub joint_states: Vec<JointState>,
+    pub metadata: Metadata,
+}
+
+/// Reads a shard or a ROS 2 bag. Truncated or corrupt files are errors naming the file, never panics.
+pub fn read(path: &Path) -> Result<Bag, ShardError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    read_bytes(&bytes, path)
+}
+
+/// Like [`read`], from memory; `path` only labels errors.
+pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
+    let me = mcap_err(path);
+    let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
+    let mut bag = Bag::default();
+    let options = mcap::read::Options::ValidateChunkCrcs.into();
+    for message in mcap::MessageStream::new_with_options(bytes, options).map_err(&me)? {
+        let message = message.map_err(&me)?;
+        let channel = &message.channel;
+        let schema = channel.schema.as_ref().map(|s| s.name.as_str());
+        if channel.message_encoding != contract::MESSAGE_ENCODING {
+            continue;
+        }
+        match (channel.topic.as_str(), schema) {
+            (contract::TOPIC_JOINT_STATES, Some(contract::SCHEMA_JOINT_STATE)) => {
+                let m = contract::decode_joint_state(&message.data)
+                    .map_err(|e| content(format!("message {} on {}: {e}", message.sequence, channel.topic)))?;
+                bag.joint_states.push(m);
+            }
+            (contract::TOPIC_ROBOT_DESCRIPTION, Some(contract::SCHEMA_STRING)) => {
+                bag.robot_description = Some(
+                    contract::decode_string(&message.data).map_err(|e| content(format!("{}: {e}", channel.topic)))?,
+                );
+            }
+            _ => {}
+        }
+    }
+    match mcap::read::Summary::read(bytes).map_err(&me)? {
+        Some(summary) => {
+            for index in &summary.metadata_indexes {
+                let m = mcap::read::metadata(bytes, index).map_err(&me)?;
+                bag.metadata.insert(m.name, m.metadata);
+            }
+        }
+        None => {
+            for record in mcap::read::LinearReader::new(bytes).map_err(&me)? {
+                if let mcap::records::Record::Metadata(m) = record.map_err(&me)? {
+                    bag.metadata.insert(m.name, m.metadata);
+                }
+            }
+        }
+    }
+    Ok(bag)
+}

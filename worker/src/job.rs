@@ -1,0 +1,163 @@
+//! A job end to end: generate the robot, plan its tour, simulate one trajectory, write the shard or report the
+//! discard.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::LABELS;
+use dynforge_proto::shard::{JointState, META_JOB, META_LABELS, META_TRAJECTORY, SHARD_VERSION};
+use dynforge_robot::generator::{GENERATOR_VERSION, GeneratedRobot, GeneratorConfig, generate};
+use dynforge_robot::parameters::labels;
+use dynforge_shard::{Metadata, ShardContent, ShardError};
+
+use crate::simulate::{Discard, Recording, SimConfig, simulate};
+use crate::trajectory::{Config6, Move, waypoints};
+
+/// One unit of work: trajectory `trajectory` of robot `robot` of dataset `seed`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Job {
+    pub seed: u64,
+    pub robot: u64,
+    pub trajectory: u32,
+}
+
+/// What a job produced.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Written { path: PathBuf, samples: usize, duration: f64, saturated: f64 },
+    Discarded(Discard),
+}
+
+/// A simulated job: the robot, and its move with the recording or the discard.
+pub struct Simulated {
+    pub robot: GeneratedRobot,
+    pub result: Result<(Move, Recording), Discard>,
+}
+
+/// Failures that are not the simulation's (those are discards): bad configuration, unwritable output.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    #[error(transparent)]
+    Model(#[from] dynforge_robot::ModelError),
+    #[error(transparent)]
+    Shard(#[from] ShardError),
+}
+
+/// The shard file name of a job: derived from the job alone, so re-running a job rewrites the same file.
+pub fn shard_name(job: &Job, engine: &str) -> String {
+    format!("r{:06}-t{:02}-{engine}.mcap", job.robot, job.trajectory)
+}
+
+/// A generated robot and its waypoint tour (or why none was found), for (seed, robot).
+struct Planned {
+    seed: u64,
+    id: u64,
+    robot: GeneratedRobot,
+    tour: Result<Vec<Config6>, String>,
+}
+
+/// Runs jobs, keeping the last robot and its tour: consecutive jobs of one robot plan once.
+pub struct Runner {
+    generator: GeneratorConfig,
+    sim: SimConfig,
+    cache: Option<Planned>,
+}
+
+impl Runner {
+    pub fn new(generator: GeneratorConfig, sim: SimConfig) -> Self {
+        Runner { generator, sim, cache: None }
+    }
+
+    pub fn sim_config(&self) -> &SimConfig {
+        &self.sim
+    }
+
+    fn planned(&mut self, job: &Job) -> Result<&Planned, JobError> {
+        let hit = matches!(&self.cache, Some(p) if p.seed == job.seed && p.id == job.robot);
+        if !hit {
+            let robot = generate(&self.generator, job.seed, job.robot)?;
+            let tour = waypoints(&robot, job.seed, &self.sim.trajectory).map_err(|e| e.to_string());
+            self.cache = Some(Planned { seed: job.seed, id: job.robot, robot, tour });
+        }
+        Ok(self.cache.as_ref().expect("filled above"))
+    }
+
+    /// Simulates a job without writing anything.
+    pub fn simulate(&mut self, job: &Job) -> Result<Simulated, JobError> {
+        let sim = self.sim.clone();
+        let Planned { robot, tour, .. } = self.planned(job)?;
+        let robot = robot.clone();
+        let result = match tour {
+            Ok(tour) => {
+                let mv = Move::of_tour(&robot.model, tour, job.trajectory as usize, &sim.trajectory);
+                simulate(&robot, &mv, &sim).map(|rec| (mv, rec))
+            }
+            Err(e) => Err(Discard::Planning(e.clone())),
+        };
+        Ok(Simulated { robot, result })
+    }
+
+    /// Runs a job and writes its shard into `out_dir`.
+    pub fn run(&mut self, job: &Job, out_dir: &Path) -> Result<Outcome, JobError> {
+        let Simulated { robot, result } = self.simulate(job)?;
+        let (mv, rec) = match result {
+            Ok(done) => done,
+            Err(d) => return Ok(Outcome::Discarded(d)),
+        };
+        let path = out_dir.join(shard_name(job, self.sim.engine.name()));
+        let messages = joint_states(&robot, &rec);
+        let metadata = self.metadata(job, &robot, &mv)?;
+        dynforge_shard::write(
+            &path,
+            &ShardContent { urdf: &robot.urdf(), joint_states: &messages, metadata: &metadata },
+        )?;
+        Ok(Outcome::Written { path, samples: rec.len(), duration: rec.duration(), saturated: rec.saturated })
+    }
+
+    fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {
+        let y = labels(&robot.model)?;
+        let joined = |q: &Config6| q.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(" ");
+        let job_meta = BTreeMap::from([
+            ("seed".to_string(), job.seed.to_string()),
+            ("robot".to_string(), job.robot.to_string()),
+            ("trajectory".to_string(), job.trajectory.to_string()),
+            ("engine".to_string(), self.sim.engine.name().to_string()),
+            ("dt".to_string(), format!("{}", self.sim.dt)),
+            ("generator_version".to_string(), GENERATOR_VERSION.to_string()),
+            ("shard_version".to_string(), SHARD_VERSION.to_string()),
+            ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ]);
+        let label_meta = LABELS.iter().zip(y).map(|(l, v)| (l.name.to_string(), format!("{v}"))).collect();
+        let traj_meta = BTreeMap::from([
+            ("start".to_string(), joined(&mv.start)),
+            ("goal".to_string(), joined(&mv.goal)),
+            ("move_end".to_string(), format!("{}", mv.duration)),
+            ("hold_end".to_string(), format!("{}", mv.total())),
+        ]);
+        Ok(BTreeMap::from([
+            (META_JOB.to_string(), job_meta),
+            (META_LABELS.to_string(), label_meta),
+            (META_TRAJECTORY.to_string(), traj_meta),
+        ]))
+    }
+}
+
+/// The recording as ROS 2 joint-state messages stamped with sim time.
+pub fn joint_states(robot: &GeneratedRobot, rec: &Recording) -> Vec<JointState> {
+    let names: Vec<String> = robot.model.joints().iter().map(|j| j.name.clone()).collect();
+    let dt_ns = (rec.dt * 1e9).round() as i64;
+    (0..rec.len())
+        .map(|k| {
+            let t = k as i64 * dt_ns;
+            JointState {
+                sec: (t / 1_000_000_000) as i32,
+                nanosec: (t % 1_000_000_000) as u32,
+                frame_id: String::new(),
+                name: names.clone(),
+                position: rec.q[k].to_vec(),
+                velocity: rec.qd[k].to_vec(),
+                effort: rec.tau[k].to_vec(),
+            }
+        })
+        .collect()
+}
