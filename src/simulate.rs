@@ -33,11 +33,14 @@ pub struct SimulateArgs {
 enum Engine {
     /// Featherstone ABA + RK4 with stick/slip friction.
     Native,
+    /// rapier3d-f64 multibody, semi-implicit Euler substeps.
+    Rapier,
 }
 
 pub fn run(args: SimulateArgs) -> Result<()> {
     let engine = match args.engine {
         Engine::Native => EngineKind::Native,
+        Engine::Rapier => EngineKind::Rapier,
     };
     let sim = SimConfig { engine, ..SimConfig::default() };
     if sim.trajectory.waypoints <= args.trajectory as usize {

@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::collision::{CollisionModel, Contact};
 use crate::control::{Pid, PidGains};
-use crate::engine::{Engine, EngineKind, NativeEngine};
+use crate::engine::{Engine, EngineKind, NativeEngine, RAPIER_SUBSTEPS, RapierEngine};
 use crate::trajectory::{Config6, Move, TrajectoryConfig};
 
 /// Everything that shapes a simulation besides the robot and its move.
@@ -105,6 +105,7 @@ impl Recording {
 pub fn engine_for<'m>(kind: EngineKind, robot: &'m GeneratedRobot, dt: f64) -> Box<dyn Engine + 'm> {
     match kind {
         EngineKind::Native => Box::new(NativeEngine::new(&robot.model, dt)),
+        EngineKind::Rapier => Box::new(RapierEngine::new(&robot.model, dt, RAPIER_SUBSTEPS)),
     }
 }
 

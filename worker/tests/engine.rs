@@ -3,7 +3,7 @@
 use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
 use dynforge_robot::model::Friction;
 use dynforge_robot::{Data, crba, energy, friction_torque, gravity_torque, rnea};
-use dynforge_worker::engine::{Engine, NativeEngine};
+use dynforge_worker::engine::{Engine, NativeEngine, RapierEngine};
 use dynforge_worker::simulate::{SimConfig, simulate};
 use dynforge_worker::trajectory::{Move, waypoints};
 
@@ -16,12 +16,13 @@ fn frictionless(r: &GeneratedRobot) -> dynforge_robot::Model {
     r.model.with_dynamics(&inertials, &[Friction::default(); 6]).unwrap()
 }
 
-/// Largest |E(t) - E(0)| over a free swing of `seconds`, relative to the peak kinetic energy.
-fn swing_drift(model: &dynforge_robot::Model, dt: f64, seconds: f64) -> f64 {
-    let mut engine = NativeEngine::new(model, dt);
+const Q0: [f64; 6] = [0.3, 0.9, -0.7, 1.1, 0.4, -0.8];
+const QD0: [f64; 6] = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5];
+
+/// Largest |E(t) - E(0)| over a free swing of `seconds` from (Q0, QD0), relative to the peak kinetic energy.
+fn swing_drift(model: &dynforge_robot::Model, mut engine: impl Engine, dt: f64, seconds: f64) -> f64 {
     let mut data = Data::new(model);
-    let q0 = [0.3, 0.9, -0.7, 1.1, 0.4, -0.8];
-    let qd0 = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5];
+    let (q0, qd0) = (Q0, QD0);
     engine.reset(&q0, &qd0);
     let e0 = energy(model, &mut data, &q0, &qd0).total();
     let (mut drift, mut peak_kinetic) = (0.0f64, 0.0f64);
@@ -40,8 +41,8 @@ fn free_swing_conserves_energy_at_fourth_order() {
     // chaotic swing and rounding), and at the 1 ms production step the drift over 10 s must stay below 1e-4 of the
     // peak kinetic energy (the target).
     let model = frictionless(&robot(2));
-    let coarse = swing_drift(&model, 1e-3, 10.0);
-    let fine = swing_drift(&model, 5e-4, 10.0);
+    let coarse = swing_drift(&model, NativeEngine::new(&model, 1e-3), 1e-3, 10.0);
+    let fine = swing_drift(&model, NativeEngine::new(&model, 5e-4), 5e-4, 10.0);
     assert!(coarse < 1e-4, "drift {coarse:e} over 10 s at 1 ms");
     assert!(coarse / fine > 8.0, "drift ratio {} (coarse {coarse:e}, fine {fine:e}) is not 4th order", coarse / fine);
 }
@@ -83,6 +84,37 @@ fn stiction_holds_below_the_coulomb_limit_and_breaks_away_above() {
     assert_eq!(&engine.qd()[..5], &[0.0; 5]);
 }
 
+/// Relative RMS of `RNEA(midpoint state, mean acceleration) + friction - torque` over the periods where every joint
+/// slides throughout, from consecutive samples `(q, qd)` and the torque held between them; and how many periods.
+fn inverse_dynamics_residual(
+    model: &dynforge_robot::Model,
+    q: &[[f64; 6]],
+    qd: &[[f64; 6]],
+    tau: &[[f64; 6]],
+    dt: f64,
+) -> (f64, usize) {
+    let mut data = Data::new(model);
+    let (mut err2, mut ref2, mut used) = (0.0, 0.0, 0);
+    let mut fric = [0.0; 6];
+    for k in 0..q.len() - 1 {
+        let (v0, v1) = (&qd[k], &qd[k + 1]);
+        if (0..6).any(|j| v0[j] * v1[j] <= 0.0) {
+            continue;
+        }
+        let qm: Vec<f64> = (0..6).map(|j| 0.5 * (q[k][j] + q[k + 1][j])).collect();
+        let vm: Vec<f64> = (0..6).map(|j| 0.5 * (v0[j] + v1[j])).collect();
+        let acc: Vec<f64> = (0..6).map(|j| (v1[j] - v0[j]) / dt).collect();
+        let id = rnea(model, &mut data, &qm, &vm, &acc).to_vec();
+        friction_torque(model, &vm, &mut fric);
+        for j in 0..6 {
+            err2 += (id[j] + fric[j] - tau[k][j]).powi(2);
+            ref2 += tau[k][j].powi(2);
+        }
+        used += 1;
+    }
+    ((err2 / ref2).sqrt(), used)
+}
+
 #[test]
 fn logged_torque_matches_inverse_dynamics_of_the_logged_motion() {
     // Sample k holds the state at t_k and the torque held over [t_k, t_k+1]. The mean acceleration over the period
@@ -94,29 +126,32 @@ fn logged_torque_matches_inverse_dynamics_of_the_logged_motion() {
     let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
     let mv = Move::of_tour(&r.model, &tour, 0, &cfg.trajectory);
     let rec = simulate(&r, &mv, &cfg).expect("the run completes");
-    let model = &r.model;
-    let mut data = Data::new(model);
-    let (mut err2, mut ref2, mut used) = (0.0, 0.0, 0);
-    let mut fric = [0.0; 6];
-    for k in 0..rec.len() - 1 {
-        let (v0, v1) = (&rec.qd[k], &rec.qd[k + 1]);
-        if (0..6).any(|j| v0[j] * v1[j] <= 0.0) {
-            continue;
-        }
-        let qm: Vec<f64> = (0..6).map(|j| 0.5 * (rec.q[k][j] + rec.q[k + 1][j])).collect();
-        let vm: Vec<f64> = (0..6).map(|j| 0.5 * (v0[j] + v1[j])).collect();
-        let acc: Vec<f64> = (0..6).map(|j| (v1[j] - v0[j]) / rec.dt).collect();
-        let tau = rnea(model, &mut data, &qm, &vm, &acc).to_vec();
-        friction_torque(model, &vm, &mut fric);
-        for j in 0..6 {
-            err2 += (tau[j] + fric[j] - rec.tau[k][j]).powi(2);
-            ref2 += rec.tau[k][j].powi(2);
-        }
-        used += 1;
-    }
+    let (rel, used) = inverse_dynamics_residual(&r.model, &rec.q, &rec.qd, &rec.tau, rec.dt);
     assert!(used > rec.len() / 4, "only {used} of {} samples slide on every joint", rec.len());
-    let rel = (err2 / ref2).sqrt();
     assert!(rel < 1e-3, "relative RMS torque residual {rel:e} over {used} samples");
+}
+
+#[test]
+fn rapier_inverse_dynamics_residual_is_its_first_order_integration_error() {
+    // rapier integrates with semi-implicit Euler substeps, so the same midpoint check leaves an O(h) residual:
+    // quadrupling the substeps must cut it ~4x (accepted: 2.5-6x). Frictionless, under a varying torque, so the
+    // check isolates the integrator (rapier's dry-friction constraint is a separate model; see docs/notes.md).
+    let model = frictionless(&robot(4));
+    let residual = |substeps: usize| {
+        let mut engine = RapierEngine::new(&model, 1e-3, substeps);
+        engine.reset(&Q0, &QD0);
+        let (mut q, mut qd, mut tau) = (vec![*engine.q()], vec![*engine.qd()], Vec::new());
+        for k in 0..300 {
+            let t = [20.0 * (k as f64 * 0.01).sin(), 30.0, 10.0, 2.0, 0.5, 0.3];
+            engine.step(&t);
+            tau.push(t);
+            q.push(*engine.q());
+            qd.push(*engine.qd());
+        }
+        inverse_dynamics_residual(&model, &q, &qd, &tau, 1e-3).0
+    };
+    let (r8, r32) = (residual(8), residual(32));
+    assert!((2.5..6.0).contains(&(r8 / r32)), "residual {r8:e} (8 substeps) vs {r32:e} (32): not first order");
 }
 
 #[test]
@@ -128,4 +163,38 @@ fn same_job_gives_bit_identical_recordings() {
     let a = simulate(&r, &mv, &cfg);
     let b = simulate(&r, &mv, &cfg);
     assert_eq!(a, b);
+}
+
+#[test]
+fn rapier_free_swing_drift_is_first_order_in_the_substep() {
+    // Semi-implicit Euler is first order: doubling the substeps must about halve the drift (ratio in [1.5, 3]).
+    let model = frictionless(&robot(2));
+    let coarse = swing_drift(&model, RapierEngine::new(&model, 1e-3, 4), 1e-3, 2.0);
+    let fine = swing_drift(&model, RapierEngine::new(&model, 1e-3, 8), 1e-3, 2.0);
+    let ratio = coarse / fine;
+    assert!((1.5..3.0).contains(&ratio), "drift {coarse:e} (4 substeps) / {fine:e} (8 substeps) = {ratio}");
+}
+
+#[test]
+fn engines_agree_within_rapiers_first_order_error() {
+    // The same free swing in both engines: native RK4's error is ~1e-9 here, so the difference is rapier's own
+    // O(h) error, which must shrink about 2x when its substeps double, and be small in absolute terms.
+    let model = frictionless(&robot(2));
+    let run = |mut engine: Box<dyn Engine>| -> Vec<[f64; 6]> {
+        engine.reset(&Q0, &QD0);
+        (0..500)
+            .map(|_| {
+                engine.step(&[0.0; 6]);
+                *engine.q()
+            })
+            .collect()
+    };
+    let native = run(Box::new(NativeEngine::new(&model, 1e-3)));
+    let gap = |substeps: usize| {
+        let r = run(Box::new(RapierEngine::new(&model, 1e-3, substeps)));
+        r.iter().zip(&native).flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs())).fold(0.0, f64::max)
+    };
+    let (g8, g16) = (gap(8), gap(16));
+    assert!(g8 < 5e-3, "max |q_rapier - q_native| over 0.5 s = {g8}");
+    assert!((1.5..3.0).contains(&(g8 / g16)), "gap {g8:e} (8 substeps) vs {g16:e} (16): not first order");
 }

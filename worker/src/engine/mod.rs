@@ -1,8 +1,10 @@
 //! Simulation engines: one trait, so the controller, the failure checks and the logging are shared.
 
 mod native;
+mod rapier;
 
 pub use native::NativeEngine;
+pub use rapier::{DEFAULT_SUBSTEPS as RAPIER_SUBSTEPS, RapierEngine};
 
 use crate::trajectory::Config6;
 
@@ -12,12 +14,15 @@ use crate::trajectory::Config6;
 pub enum EngineKind {
     /// Featherstone ABA + RK4 with exact stick/slip Coulomb friction (this crate).
     Native,
+    /// rapier3d-f64's reduced-coordinate multibody (semi-implicit Euler substeps).
+    Rapier,
 }
 
 impl EngineKind {
     pub fn name(self) -> &'static str {
         match self {
             EngineKind::Native => "native",
+            EngineKind::Rapier => "rapier",
         }
     }
 }
