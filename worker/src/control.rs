@@ -9,13 +9,16 @@
 //! the joint's torque limit, and it stops integrating while the output saturates in the error's direction. The
 //! output is clamped to the joint's effort limit; that clamped torque is what the motor applies and what is logged.
 //!
-//! Gains are scheduled on the joint-space inertia: joint `i` is a critically damped second-order loop of natural
-//! frequency `omega_i` for its current diagonal mass-matrix entry `M_ii(q)`, so `Kp = M_ii omega^2`,
-//! `Kd = 2 zeta M_ii omega`, `Ki = Kp omega * integral_ratio`. A fixed gain cannot serve this distribution: the base
-//! joint's inertia varies 1000x between a folded and a stretched arm (0.007-7 kg m^2), and a derivative gain stiff
-//! enough for the heavy case makes the discrete 1 kHz loop unstable for the light one (`Kd dt / I` must stay well
-//! under 2). The integral term is kept as a torque, so gain changes are bumpless.
+//! Gains are scheduled on the joint-space inertia: `Kp = max(M_ii(q), floor_i) omega^2`,
+//! `Kd = 2 zeta sqrt(Kp M_ii(q))` (critical damping for the joint's actual inertia at that stiffness) and
+//! `Ki = Kp omega * integral_ratio`. A fixed gain cannot serve this distribution: the base joint's inertia varies
+//! 1000x between a folded and a stretched arm (0.007-7 kg m^2). The floor gives light joints (wrists of 2e-4 kg m^2
+//! carrying up to 1 N m of Coulomb friction) the stiffness to push through friction; damping for the true inertia
+//! keeps the discrete 1 kHz loop stable: for the lightest wrist, `sqrt(Kp / I) dt` = 0.27 and `Kd dt / I` = 0.54.
+//! The integral term is kept as a torque, so gain changes are bumpless. Tuning (bench/simulation.sh, 100 robots):
+//! see the README.
 
+use nalgebra::Matrix6;
 use serde::{Deserialize, Serialize};
 
 /// Controller tuning.
@@ -41,10 +44,10 @@ pub struct PidGains {
 impl Default for PidGains {
     fn default() -> Self {
         PidGains {
-            omega: [20.0; 6],
-            inertia_floor: [0.2, 0.5, 0.2, 0.02, 0.004, 0.004],
+            omega: [25.0; 6],
+            inertia_floor: [0.3, 0.8, 0.3, 0.06, 0.02, 0.02],
             zeta: 1.0,
-            integral_ratio: 0.5,
+            integral_ratio: 1.0,
             kg_fraction: 0.5,
             windup_fraction: 0.7,
         }
@@ -76,17 +79,32 @@ impl Pid {
         }
     }
 
-    /// Torque command for errors `e = q_ref - q`, `ed = qd_ref - qd`, the end effector's `dz/dq` and the mass
-    /// matrix diagonal `m_diag`; then advances the integral by `dt`. Returns the saturated torque.
-    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dz_dq: &[f64; 6], m_diag: &[f64; 6], dt: f64) -> [f64; 6] {
+    /// Torque command for errors `e = q_ref - q`, `ed = qd_ref - qd`, the end effector's `dz/dq` and the joint-space
+    /// mass matrix `m` at the current pose; then advances the integral by `dt`. Returns the saturated torque.
+    ///
+    /// Per-joint gains ignore the coupling between joints, and in stretched poses the effective inertia of a joint
+    /// (`1 / (M^-1)_ii`) is far below `M_ii`. The discrete loop stays stable while `dt lambda_max(M^-1 Kd)` is well
+    /// below 2; it is kept at most 1 by scaling the loop's frequency (`Kd` by `s`, `Kp` and `Ki` by `s^2`, which
+    /// keeps the damping ratio). `lambda_max` is that of the symmetric `Kd^1/2 M^-1 Kd^1/2`.
+    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dz_dq: &[f64; 6], m: &Matrix6<f64>, dt: f64) -> [f64; 6] {
         let g = &self.gains;
-        let mut out = [0.0; 6];
+        let m_inv = m.cholesky().map(|c| c.inverse()).unwrap_or_else(Matrix6::zeros);
+        let mut kp = [0.0; 6];
+        let mut kd = [0.0; 6];
         for j in 0..6 {
             let w = g.omega[j];
-            let inertia = m_diag[j].max(g.inertia_floor[j]);
-            let kp = inertia * w * w;
-            let kd = 2.0 * g.zeta * inertia * w;
-            let ki = kp * w * g.integral_ratio;
+            kp[j] = m[(j, j)].max(g.inertia_floor[j]) * w * w;
+            // Damping for the joint's own inertia at this stiffness, so a floored joint is not overdamped into
+            // instability: Kd dt / I = 2 zeta sqrt(Kp / I) dt stays small.
+            kd[j] = 2.0 * g.zeta * (kp[j] * m[(j, j)]).sqrt();
+        }
+        let root = Matrix6::from_diagonal(&nalgebra::Vector6::from(kd.map(f64::sqrt)));
+        let lambda = (root * m_inv * root).symmetric_eigenvalues().max();
+        let s = (1.0 / (dt * lambda)).min(1.0);
+        let mut out = [0.0; 6];
+        for j in 0..6 {
+            let (kp, kd) = (kp[j] * s * s, kd[j] * s);
+            let ki = kp * g.omega[j] * s * g.integral_ratio;
             let raw = kp * (1.0 + g.kg_fraction * dz_dq[j].abs()) * e[j] + self.integral[j] + kd * ed[j];
             out[j] = raw.clamp(-self.effort[j], self.effort[j]);
             let saturated_along_error = out[j] != raw && raw.signum() == e[j].signum();

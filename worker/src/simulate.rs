@@ -2,7 +2,7 @@
 
 use dynforge_robot::generator::GeneratedRobot;
 use dynforge_robot::{Data, crba, energy, point_jacobian};
-use nalgebra::Vector3;
+use nalgebra::{Matrix6, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::collision::{CollisionModel, Contact};
@@ -161,15 +161,15 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
             }
         }
         let (q_ref, qd_ref, _) = mv.reference(t);
-        let m_diag: Config6 = {
+        let m = {
             let m = crba(model, &mut data, &q);
-            std::array::from_fn(|j| m[(j, j)])
+            Matrix6::from_fn(|r, c| m[(r, c)])
         };
         point_jacobian(model, &mut data, 5, &tip);
         let dz_dq: Config6 = std::array::from_fn(|j| data.jacobian[(2, j)]);
         let e: Config6 = std::array::from_fn(|j| q_ref[j] - q[j]);
         let ed: Config6 = std::array::from_fn(|j| qd_ref[j] - qd[j]);
-        let tau = pid.update(&e, &ed, &dz_dq, &m_diag, cfg.dt);
+        let tau = pid.update(&e, &ed, &dz_dq, &m, cfg.dt);
         if (0..6).any(|j| tau[j].abs() >= effort[j]) {
             saturated += 1;
         }
@@ -177,9 +177,9 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
         rec.qd.push(qd);
         rec.tau.push(tau);
         engine.step(&tau);
-        // Motor work over the period, trapezoidal in the joint speed.
-        let qd_next = engine.qd();
-        work += (0..6).map(|j| tau[j] * 0.5 * (qd[j] + qd_next[j]) * cfg.dt).sum::<f64>();
+        // Motor work over the period: exact for a torque held constant, tau . (q_next - q).
+        let q_next = engine.q();
+        work += (0..6).map(|j| tau[j] * (q_next[j] - q[j])).sum::<f64>();
     }
     let q_end = engine.q();
     for j in 0..6 {

@@ -82,10 +82,8 @@ impl RapierEngine {
             bodies_of_links.push(body);
             axes.push(axis);
         }
-        let mut params = IntegrationParameters::default();
-        params.dt = dt;
-        params.num_solver_iterations = substeps;
-        params.max_ccd_substeps = 0;
+        let params =
+            IntegrationParameters { dt, num_solver_iterations: substeps, max_ccd_substeps: 0, ..Default::default() };
         let mut engine = RapierEngine {
             pipeline: PhysicsPipeline::new(),
             params,
