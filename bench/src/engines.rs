@@ -18,7 +18,8 @@ const Q0: [f64; 6] = [0.3, 0.9, -0.7, 1.1, 0.4, -0.8];
 const QD0: [f64; 6] = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5];
 const DT: f64 = 1e-3;
 
-fn measure(name: &str, model: &Model, steps: usize, make: &dyn Fn() -> Box<dyn Engine + '_>) {
+#[allow(clippy::needless_lifetimes)] // the engines borrow the model for 'm
+fn measure<'m>(name: &str, model: &'m Model, steps: usize, make: &dyn Fn() -> Box<dyn Engine + 'm>) {
     let mut engine = make();
     engine.reset(&Q0, &QD0);
     let start = Instant::now();
