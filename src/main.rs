@@ -1,5 +1,6 @@
 //! The `dynforge` command line: parses arguments and dispatches to the library crates.
 
+mod generate;
 mod robot;
 mod simulate;
 
@@ -20,6 +21,15 @@ enum Command {
     Robot(robot::RobotArgs),
     /// Simulate one job (robot x trajectory) by hand and write its shard.
     Simulate(simulate::SimulateArgs),
+    /// Generate (or resume) a dataset: a coordinator plus N worker processes.
+    Generate(generate::GenerateArgs),
+    /// Show the progress of a generation (live from its coordinator, or from its ledger).
+    Status(generate::StatusArgs),
+    /// Check every shard of a dataset against its ledger and manifest.
+    Verify(generate::VerifyArgs),
+    /// A worker process (started by `generate`).
+    #[command(hide = true)]
+    Worker(generate::WorkerArgs),
 }
 
 fn main() -> std::process::ExitCode {
@@ -27,6 +37,10 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Robot(args) => robot::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Generate(args) => generate::generate(args),
+        Command::Status(args) => generate::status(args),
+        Command::Verify(args) => generate::verify(args),
+        Command::Worker(args) => generate::worker(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -30,7 +30,7 @@ pub struct SimulateArgs {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
-enum Engine {
+pub enum Engine {
     /// Featherstone ABA + RK4 with stick/slip friction.
     Native,
     /// rapier3d-f64 multibody, semi-implicit Euler substeps.
@@ -58,7 +58,7 @@ pub fn run(args: SimulateArgs) -> Result<()> {
     let wall = start.elapsed().as_secs_f64();
     let what = format!("seed {} robot {} trajectory {} ({})", job.seed, job.robot, job.trajectory, engine.name());
     match outcome {
-        Outcome::Written { path, samples, duration, saturated } => println!(
+        Outcome::Written { path, samples, duration, saturated, .. } => println!(
             "{what}: {duration:.3} s of motion, {samples} samples at 1 kHz, torque saturated in {:.1} % of samples, \
              simulated in {wall:.2} s ({:.1}x real time)\nwrote {}",
             100.0 * saturated,

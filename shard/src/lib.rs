@@ -42,16 +42,19 @@ fn mcap_err(path: &Path) -> impl Fn(mcap::McapError) -> ShardError + '_ {
 }
 
 /// Writes a shard to `path` atomically: a temporary file in the same directory, fsync, rename, fsync of the
-/// directory. The file either appears whole or not at all; the same content always gives the same bytes.
-pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
+/// directory. The file either appears whole or not at all; the same content always gives the same bytes. Returns
+/// the file's [`content_hash`].
+pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name =
         path.file_name().ok_or_else(|| ShardError::Content { path: path.into(), message: "not a file path".into() })?;
     let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
     let result = write_file(&tmp, content).and_then(|()| {
+        let hash = content_hash(&std::fs::read(&tmp).map_err(io_err(&tmp))?);
         std::fs::rename(&tmp, path).map_err(io_err(path))?;
         // Make the rename itself durable.
-        std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(io_err(dir))
+        std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(io_err(dir))?;
+        Ok(hash)
     });
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -106,6 +109,17 @@ fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError>
     w.finish().map_err(&me)?;
     let file = w.into_inner().into_inner().map_err(|e| io_err(path)(e.into_error()))?;
     file.sync_all().map_err(io_err(path))
+}
+
+/// A stable 64-bit content hash of a shard's bytes (FNV-1a), recorded in the ledger and checked by `verify`: cheap
+/// enough for workers to compute on every shard, and fixed forever (no dependency can change it).
+pub fn content_hash(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
 }
 
 /// A decoded bag or shard.
@@ -167,4 +181,15 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
         }
     }
     Ok(bag)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn content_hash_is_fnv1a_64() {
+        // Published FNV-1a 64 test vectors.
+        assert_eq!(super::content_hash(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(super::content_hash(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(super::content_hash(b"foobar"), 0x8594_4171_f739_67e8);
+    }
 }

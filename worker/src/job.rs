@@ -24,7 +24,7 @@ pub struct Job {
 /// What a job produced.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Outcome {
-    Written { path: PathBuf, samples: usize, duration: f64, saturated: f64 },
+    Written { path: PathBuf, samples: usize, duration: f64, saturated: f64, content_hash: u64 },
     Discarded(Discard),
 }
 
@@ -107,11 +107,17 @@ impl Runner {
         let path = out_dir.join(shard_name(job, self.sim.engine.name()));
         let messages = joint_states(&robot, &rec);
         let metadata = self.metadata(job, &robot, &mv)?;
-        dynforge_shard::write(
+        let content_hash = dynforge_shard::write(
             &path,
             &ShardContent { urdf: &robot.urdf(), joint_states: &messages, metadata: &metadata },
         )?;
-        Ok(Outcome::Written { path, samples: rec.len(), duration: rec.duration(), saturated: rec.saturated })
+        Ok(Outcome::Written {
+            path,
+            samples: rec.len(),
+            duration: rec.duration(),
+            saturated: rec.saturated,
+            content_hash,
+        })
     }
 
     fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {

@@ -1,0 +1,140 @@
+//! The run manifest: everything that determines a dataset's content, written once into the output directory. A
+//! later `generate` on the same directory resumes only if its manifest is identical, so a dataset never mixes
+//! shards of two configurations.
+
+use std::path::Path;
+
+use dynforge_robot::generator::{GENERATOR_VERSION, GeneratorConfig};
+use dynforge_worker::simulate::SimConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::plan::Partition;
+
+pub const FILE: &str = "manifest.toml";
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Manifest {
+    pub dynforge_version: String,
+    pub generator_version: u32,
+    pub shard_version: u32,
+    pub seed: u64,
+    pub robots: u64,
+    pub trajectories: u32,
+    pub partition: Partition,
+    pub generator: GeneratorConfig,
+    pub sim: SimConfig,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ManifestError {
+    #[error("{path}: {message}")]
+    Io { path: String, message: String },
+    #[error("{path}: not a dynforge run manifest: {message}")]
+    Parse { path: String, message: String },
+    #[error(
+        "{path} describes a different run ({differences}); resume with the same settings, or use another --out directory"
+    )]
+    Mismatch { path: String, differences: String },
+}
+
+impl Manifest {
+    pub fn new(
+        seed: u64,
+        robots: u64,
+        trajectories: u32,
+        partition: Partition,
+        generator: GeneratorConfig,
+        sim: SimConfig,
+    ) -> Self {
+        Manifest {
+            dynforge_version: env!("CARGO_PKG_VERSION").to_string(),
+            generator_version: GENERATOR_VERSION,
+            shard_version: dynforge_proto::shard::SHARD_VERSION,
+            seed,
+            robots,
+            trajectories,
+            partition,
+            generator,
+            sim,
+        }
+    }
+
+    fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a manifest serialises")
+    }
+
+    /// Reads `DIR/manifest.toml`, if present.
+    pub fn load(dir: &Path) -> Result<Option<Manifest>, ManifestError> {
+        let path = dir.join(FILE);
+        let shown = path.display().to_string();
+        match std::fs::read_to_string(&path) {
+            Ok(text) => toml::from_str(&text)
+                .map(Some)
+                .map_err(|e| ManifestError::Parse { path: shown, message: e.to_string() }),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => Err(ManifestError::Io { path: shown, message: e.to_string() }),
+        }
+    }
+
+    /// Writes the manifest into a new run directory, or checks it against the one already there.
+    pub fn create_or_check(&self, dir: &Path) -> Result<(), ManifestError> {
+        let path = dir.join(FILE);
+        let shown = path.display().to_string();
+        if let Some(existing) = Manifest::load(dir)? {
+            if existing != *self {
+                return Err(ManifestError::Mismatch { path: shown, differences: self.differences(&existing) });
+            }
+            return Ok(());
+        }
+        let tmp = dir.join(format!(".{FILE}.tmp"));
+        let io = |e: std::io::Error| ManifestError::Io { path: shown.clone(), message: e.to_string() };
+        std::fs::write(&tmp, self.to_toml()).map_err(io)?;
+        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(io)?;
+        std::fs::rename(&tmp, &path).map_err(io)
+    }
+
+    /// Names of the top-level settings that differ, with both values for scalars.
+    fn differences(&self, other: &Manifest) -> String {
+        let a: toml::Table = toml::from_str(&self.to_toml()).expect("round trip");
+        let b: toml::Table = toml::from_str(&other.to_toml()).expect("round trip");
+        let mut out = Vec::new();
+        for (key, va) in &a {
+            let vb = b.get(key);
+            if vb != Some(va) {
+                match (va, vb) {
+                    (toml::Value::Table(_), _) | (_, Some(toml::Value::Table(_))) => out.push(format!("{key} differs")),
+                    (_, Some(vb)) => out.push(format!("{key}: requested {va}, directory has {vb}")),
+                    (_, None) => out.push(format!("{key} missing in the directory's manifest")),
+                }
+            }
+        }
+        out.join("; ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn manifest(robots: u64) -> Manifest {
+        Manifest::new(1, robots, 16, Partition::WHOLE, GeneratorConfig::default(), SimConfig::default())
+    }
+
+    #[test]
+    fn same_manifest_resumes_and_a_different_one_is_refused_with_the_difference() {
+        let dir = tempfile::tempdir().unwrap();
+        manifest(8).create_or_check(dir.path()).unwrap();
+        manifest(8).create_or_check(dir.path()).unwrap();
+        assert_eq!(Manifest::load(dir.path()).unwrap(), Some(manifest(8)));
+        let e = manifest(9).create_or_check(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("robots: requested 9, directory has 8"), "{e}");
+        let mut other = manifest(8);
+        other.sim.dt = 2e-3;
+        let e = other.create_or_check(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("sim differs"), "{e}");
+        std::fs::write(dir.path().join(FILE), "seed = 'x'").unwrap();
+        let e = manifest(8).create_or_check(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("manifest.toml: not a dynforge run manifest"), "{e}");
+    }
+}

@@ -1,0 +1,52 @@
+//! The worker process: serves jobs from the coordinator of a run directory until told to stop.
+
+use std::path::Path;
+
+use dynforge_ipc::{IpcError, JobReport, RunId, Worker};
+use dynforge_worker::job::{Job, Outcome, Runner};
+
+use crate::manifest::Manifest;
+use crate::verify::SHARDS;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    #[error("{0}: no run manifest (workers are started by `dynforge generate`)")]
+    NoManifest(String),
+    #[error(transparent)]
+    Manifest(#[from] crate::manifest::ManifestError),
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+}
+
+/// Serves slot `slot` of the run in `dir`. Returns when the coordinator stops the worker or goes away.
+pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
+    let manifest = Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.display().to_string()))?;
+    let run = RunId::for_dir(dir)?;
+    let mut worker = Worker::new(&run, slot)?;
+    let mut runner = Runner::new(manifest.generator, manifest.sim);
+    let shards = dir.join(SHARDS);
+    let mut served = 0;
+    while let Some(request) = worker.next_job()? {
+        let job = Job { seed: request.seed, robot: request.robot, trajectory: request.trajectory };
+        let job_id = request.job_id;
+        let report = match runner.run(&job, &shards) {
+            Ok(Outcome::Written { samples, content_hash, .. }) => {
+                JobReport::Done { job_id, samples: samples as u64, content_hash }
+            }
+            Ok(Outcome::Discarded(d)) => {
+                eprintln!("robot {} trajectory {}: discarded: {d}", job.robot, job.trajectory);
+                JobReport::Discarded { job_id, reason: d.code().into() }
+            }
+            Err(e) => {
+                eprintln!("robot {} trajectory {}: error: {e}", job.robot, job.trajectory);
+                JobReport::Failed { job_id, message: e.to_string().as_str().into() }
+            }
+        };
+        match worker.report(&report) {
+            Ok(()) | Err(IpcError::JobAbandoned(_)) => {}
+            Err(e) => return Err(e.into()),
+        }
+        served += 1;
+    }
+    Ok(served)
+}

@@ -1,0 +1,142 @@
+//! `verify`: checks a run directory's shards against its ledger and manifest.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+
+use dynforge_proto::LABELS;
+use dynforge_proto::shard::{META_JOB, META_LABELS};
+use dynforge_worker::job::{Job, shard_name};
+
+use crate::ledger::{self, Status};
+use crate::manifest::Manifest;
+use crate::plan;
+
+/// Name of the shard directory inside a run directory.
+pub const SHARDS: &str = "shards";
+/// Name of the ledger inside a run directory.
+pub const LEDGER: &str = "ledger.tsv";
+
+/// What `verify` found.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct Report {
+    /// Jobs of the manifest's partition.
+    pub planned: usize,
+    pub done: usize,
+    pub discarded: usize,
+    pub failed: usize,
+    /// Planned jobs with no ledger entry yet.
+    pub pending: usize,
+    /// Shards recorded as done but absent.
+    pub missing: Vec<String>,
+    /// Shard files no ledger entry accounts for.
+    pub extra: Vec<String>,
+    /// Shards that exist but fail a check, with the reason.
+    pub corrupt: Vec<(String, String)>,
+    /// Discards by reason code.
+    pub reasons: BTreeMap<String, usize>,
+}
+
+impl Report {
+    pub fn is_ok(&self) -> bool {
+        self.missing.is_empty() && self.extra.is_empty() && self.corrupt.is_empty()
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum VerifyError {
+    #[error("{0}: no run manifest here (not a dynforge generate directory)")]
+    NoManifest(String),
+    #[error(transparent)]
+    Manifest(#[from] crate::manifest::ManifestError),
+    #[error(transparent)]
+    Ledger(#[from] ledger::LedgerError),
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+}
+
+/// Checks one shard against its ledger entry; the reason if it fails.
+fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64) -> Result<(), String> {
+    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    if dynforge_shard::content_hash(&bytes) != hash {
+        return Err("content hash differs from the ledger".into());
+    }
+    let bag = dynforge_shard::read_bytes(&bytes, path).map_err(|e| e.to_string())?;
+    if bag.robot_description.is_none() {
+        return Err("no /robot_description".into());
+    }
+    if bag.joint_states.len() as u64 != samples {
+        return Err(format!("{} joint states, the ledger says {samples}", bag.joint_states.len()));
+    }
+    let labels = bag.metadata.get(META_LABELS).ok_or("no label metadata")?;
+    if let Some(l) = LABELS.iter().find(|l| labels.get(l.name).and_then(|v| v.parse::<f64>().ok()).is_none()) {
+        return Err(format!("label {} missing or not a number", l.name));
+    }
+    let meta = bag.metadata.get(META_JOB).ok_or("no job metadata")?;
+    let field = |k: &str| meta.get(k).cloned().unwrap_or_default();
+    if field("seed") != job.seed.to_string()
+        || field("robot") != job.robot.to_string()
+        || field("trajectory") != job.trajectory.to_string()
+    {
+        return Err("job metadata does not match the file name".into());
+    }
+    Ok(())
+}
+
+/// Verifies the run directory `dir`, calling `progress` after each shard checked.
+pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Report, VerifyError> {
+    let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
+    let entries = ledger::read(&dir.join(LEDGER))?;
+    let engine = manifest.sim.engine.name();
+    let shards = dir.join(SHARDS);
+    let mut report = Report::default();
+    let planned: BTreeMap<u64, Job> =
+        plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition)
+            .map(|j| (plan::job_id(&j, manifest.trajectories), j))
+            .collect();
+    report.planned = planned.len();
+    // Last entry wins (a job has one entry unless the ledger was edited by hand).
+    let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let mut expected_files = BTreeSet::new();
+    let total = latest.len();
+    for (k, (id, e)) in latest.iter().enumerate() {
+        let job = Job { seed: manifest.seed, robot: e.robot, trajectory: e.trajectory };
+        match &e.status {
+            Status::Done { samples, shard_hash } => {
+                report.done += 1;
+                let name = shard_name(&job, engine);
+                let path = shards.join(&name);
+                expected_files.insert(name.clone());
+                if !path.exists() {
+                    report.missing.push(name);
+                } else if let Err(reason) = check_shard(&path, &job, *samples, *shard_hash) {
+                    report.corrupt.push((name, reason));
+                }
+            }
+            Status::Discarded { reason } => {
+                report.discarded += 1;
+                *report.reasons.entry(reason.clone()).or_default() += 1;
+            }
+            Status::Failed { .. } => report.failed += 1,
+        }
+        if !planned.contains_key(id) {
+            report.corrupt.push((format!("ledger job {id}"), "not a job of this run's manifest".into()));
+        }
+        progress(k + 1, total);
+    }
+    report.pending = planned.keys().filter(|id| !latest.contains_key(id)).count();
+    match std::fs::read_dir(&shards) {
+        Ok(listing) => {
+            for entry in listing {
+                let entry = entry.map_err(|source| VerifyError::Io { path: shards.display().to_string(), source })?;
+                let name = entry.file_name().to_string_lossy().to_string();
+                if !expected_files.contains(&name) {
+                    report.extra.push(name);
+                }
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(source) => return Err(VerifyError::Io { path: shards.display().to_string(), source }),
+    }
+    report.extra.sort();
+    Ok(report)
+}

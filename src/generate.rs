@@ -1,0 +1,303 @@
+//! `dynforge generate | status | verify | worker`: datasets made by a coordinator and worker processes.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use dynforge_coordinator::ledger::{self, Status};
+use dynforge_coordinator::manifest::Manifest;
+use dynforge_coordinator::plan::{self, Partition};
+use dynforge_coordinator::run::{GenerateConfig, Observer, Progress, generate as run_generate};
+use dynforge_coordinator::verify::{LEDGER, verify as run_verify};
+use dynforge_robot::generator::GeneratorConfig;
+use dynforge_worker::engine::EngineKind;
+use dynforge_worker::simulate::SimConfig;
+use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
+
+#[derive(Args)]
+pub struct GenerateArgs {
+    /// Output directory (created if missing). Running the same command on it again resumes.
+    #[arg(long, short)]
+    out: PathBuf,
+    /// Robots in the dataset (the paper: 8192).
+    #[arg(long, default_value_t = 8192)]
+    robots: u64,
+    /// Trajectories per robot (the paper: 16).
+    #[arg(long, default_value_t = 16)]
+    trajectories: u32,
+    /// Worker processes (default: one per CPU core).
+    #[arg(long)]
+    workers: Option<usize>,
+    /// Dataset seed.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Simulation engine.
+    #[arg(long, value_enum, default_value_t = crate::simulate::Engine::Native)]
+    engine: crate::simulate::Engine,
+    /// Run only partition i of n (robots r with r % n == i), to split one dataset over several hosts.
+    #[arg(long, default_value = "0/1")]
+    partition: Partition,
+    /// Generator configuration (TOML) for the robot distribution.
+    #[arg(long, value_name = "TOML")]
+    config: Option<PathBuf>,
+    /// Seconds a job may run before its worker counts as hung and is replaced.
+    #[arg(long, default_value_t = 120.0)]
+    job_timeout: f64,
+}
+
+#[derive(Args)]
+pub struct StatusArgs {
+    /// The generation's output directory.
+    dir: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct VerifyArgs {
+    /// The generation's output directory.
+    dir: PathBuf,
+}
+
+#[derive(Args)]
+pub struct WorkerArgs {
+    #[arg(long)]
+    dir: PathBuf,
+    #[arg(long)]
+    slot: usize,
+}
+
+/// Progress in the terminal: a bar plus a line per worker on a TTY, periodic log lines otherwise.
+struct Display {
+    bars: Option<(MultiProgress, ProgressBar, Vec<ProgressBar>)>,
+    last_log: Instant,
+}
+
+impl Display {
+    fn new() -> Self {
+        Display { bars: None, last_log: Instant::now() }
+    }
+
+    fn summary(p: &Progress) -> String {
+        let mut reasons: Vec<_> = p.reasons.iter().collect();
+        reasons.sort();
+        let reasons = reasons.iter().map(|(r, n)| format!("{r} {n}")).collect::<Vec<_>>().join(", ");
+        format!(
+            "done {} | discarded {}{} | failed {} | in flight {} | {:.1} jobs/s",
+            p.done,
+            p.discarded,
+            if reasons.is_empty() { String::new() } else { format!(" ({reasons})") },
+            p.failed,
+            p.in_flight,
+            p.rate
+        )
+    }
+}
+
+impl Observer for Display {
+    fn update(&mut self, p: &Progress) {
+        if !std::io::stderr().is_terminal() {
+            if self.last_log.elapsed() >= Duration::from_secs(5) || p.finished() == p.total {
+                self.last_log = Instant::now();
+                eprintln!("[{}/{}] {}", p.finished(), p.total, Display::summary(p));
+            }
+            return;
+        }
+        let (multi, main, workers) = self.bars.get_or_insert_with(|| {
+            let multi = MultiProgress::new();
+            let main = multi.add(ProgressBar::new(p.total));
+            main.set_style(
+                ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, ETA {eta} | {msg}").expect("valid template"),
+            );
+            (multi, main, Vec::new())
+        });
+        main.set_length(p.total);
+        main.set_position(p.finished());
+        main.set_message(Display::summary(p));
+        while workers.len() < p.slots.len() {
+            workers.push(multi.add(ProgressBar::new_spinner()));
+        }
+        for (k, (bar, job)) in workers.iter().zip(&p.slots).enumerate() {
+            bar.set_message(match job {
+                Some(j) => format!("worker {k}: robot {} trajectory {}", j.robot, j.trajectory),
+                None => format!("worker {k}: idle"),
+            });
+        }
+    }
+
+    fn message(&mut self, text: &str) {
+        match &self.bars {
+            Some((multi, ..)) => {
+                let _ = multi.println(text);
+            }
+            None => eprintln!("{text}"),
+        }
+    }
+}
+
+impl Drop for Display {
+    fn drop(&mut self) {
+        if let Some((_, main, workers)) = &self.bars {
+            for w in workers {
+                w.finish_and_clear();
+            }
+            main.finish();
+        }
+    }
+}
+
+pub fn generate(args: GenerateArgs) -> Result<()> {
+    let generator = match &args.config {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            GeneratorConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
+        }
+        None => GeneratorConfig::default(),
+    };
+    let engine = match args.engine {
+        crate::simulate::Engine::Native => EngineKind::Native,
+        crate::simulate::Engine::Rapier => EngineKind::Rapier,
+    };
+    if args.job_timeout.is_nan() || args.job_timeout <= 0.0 {
+        bail!("--job-timeout must be positive");
+    }
+    let workers = args.workers.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let exe = std::env::current_exe().context("locating the dynforge executable to start workers")?;
+    let cfg = GenerateConfig {
+        dir: args.out.clone(),
+        seed: args.seed,
+        robots: args.robots,
+        trajectories: args.trajectories,
+        workers,
+        partition: args.partition,
+        generator,
+        sim: SimConfig { engine, ..SimConfig::default() },
+        job_timeout: Duration::from_secs_f64(args.job_timeout),
+        max_attempts: 3,
+        worker_command: vec![exe.into(), "worker".into()],
+    };
+    eprintln!(
+        "generating {} robots x {} trajectories (seed {}, partition {}, engine {}) into {} with {workers} workers",
+        args.robots,
+        args.trajectories,
+        args.seed,
+        args.partition,
+        engine.name(),
+        args.out.display()
+    );
+    let start = Instant::now();
+    let mut display = Display::new();
+    let progress = run_generate(&cfg, &mut display)?;
+    drop(display);
+    println!(
+        "{} jobs: {} ({} resumed from an earlier run) in {:.1} s",
+        progress.total,
+        Display::summary(&progress),
+        progress.resumed,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+pub fn status(args: StatusArgs) -> Result<()> {
+    let run = dynforge_ipc::RunId::for_dir(&args.dir)?;
+    if let Some(mut reader) = dynforge_ipc::StatusReader::open(&run)?
+        && let Some(s) = reader.latest_timeout(Duration::from_millis(500))
+    {
+        if args.json {
+            let v = serde_json::json!({
+                "live": true, "total": s.total, "done": s.done, "discarded": s.discarded, "failed": s.failed,
+                "in_flight": s.in_flight, "workers_alive": s.workers_alive, "rate_per_s": s.rate_per_s,
+                "eta_s": s.eta_s, "respawns": s.respawns, "coordinator_pid": s.coordinator_pid,
+            });
+            println!("{v}");
+        } else {
+            println!(
+                "running (coordinator pid {}): {}/{} jobs finished: done {}, discarded {}, failed {}; {} in flight on {} workers; {:.1} jobs/s, ETA {:.0} s",
+                s.coordinator_pid,
+                s.done + s.discarded + s.failed,
+                s.total,
+                s.done,
+                s.discarded,
+                s.failed,
+                s.in_flight,
+                s.workers_alive,
+                s.rate_per_s,
+                s.eta_s
+            );
+        }
+        return Ok(());
+    }
+    let manifest = Manifest::load(&args.dir)?
+        .with_context(|| format!("{}: no run manifest (not a dynforge generate directory)", args.dir.display()))?;
+    let entries = ledger::read(&args.dir.join(LEDGER))?;
+    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count();
+    let (mut done, mut discarded, mut failed) = (0, 0, 0);
+    let mut reasons = std::collections::BTreeMap::<String, usize>::new();
+    for e in &entries {
+        match &e.status {
+            Status::Done { .. } => done += 1,
+            Status::Discarded { reason } => {
+                discarded += 1;
+                *reasons.entry(reason.clone()).or_default() += 1;
+            }
+            Status::Failed { .. } => failed += 1,
+        }
+    }
+    if args.json {
+        let v = serde_json::json!({
+            "live": false, "total": total, "done": done, "discarded": discarded, "failed": failed,
+            "reasons": reasons, "pending": total - (done + discarded + failed),
+        });
+        println!("{v}");
+    } else {
+        println!(
+            "not running: {}/{total} jobs finished (done {done}, discarded {discarded} {reasons:?}, failed {failed}); {} pending",
+            done + discarded + failed,
+            total - (done + discarded + failed)
+        );
+    }
+    Ok(())
+}
+
+pub fn verify(args: VerifyArgs) -> Result<()> {
+    let bar = if std::io::stderr().is_terminal() { ProgressBar::new(0) } else { ProgressBar::hidden() };
+    let report = run_verify(&args.dir, |k, n| {
+        bar.set_length(n as u64);
+        bar.set_position(k as u64);
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "{}: {} jobs planned: {} done, {} discarded {:?}, {} failed, {} pending",
+        args.dir.display(),
+        report.planned,
+        report.done,
+        report.discarded,
+        report.reasons,
+        report.failed,
+        report.pending
+    );
+    for m in &report.missing {
+        println!("missing: {m}");
+    }
+    for m in &report.extra {
+        println!("extra: {m}");
+    }
+    for (m, why) in &report.corrupt {
+        println!("corrupt: {m}: {why}");
+    }
+    if !report.is_ok() {
+        bail!("{} missing, {} extra, {} corrupt", report.missing.len(), report.extra.len(), report.corrupt.len());
+    }
+    println!("ok: every recorded shard is present and intact");
+    Ok(())
+}
+
+pub fn worker(args: WorkerArgs) -> Result<()> {
+    let served = dynforge_coordinator::serve::serve(&args.dir, args.slot)?;
+    eprintln!("worker {}: served {served} jobs", args.slot);
+    Ok(())
+}
