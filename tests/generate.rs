@@ -1,0 +1,229 @@
+//! End-to-end tests of `dynforge generate`: real coordinator and worker processes, real kills.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use dynforge_coordinator::ledger;
+
+const EXE: &str = env!("CARGO_BIN_EXE_dynforge");
+
+fn dynforge(args: &[&str]) -> Output {
+    Command::new(EXE).args(args).output().expect("dynforge runs")
+}
+
+fn generate_args<'a>(dir: &'a Path, robots: &'a str, trajectories: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "generate",
+        "--out",
+        dir.to_str().unwrap(),
+        "--robots",
+        robots,
+        "--trajectories",
+        trajectories,
+        "--seed",
+        "4",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+fn spawn(args: &[&str]) -> Child {
+    Command::new(EXE).args(args).stdout(Stdio::null()).stderr(Stdio::null()).spawn().expect("dynforge starts")
+}
+
+/// File name -> content hash of every shard in a run directory.
+fn shard_hashes(dir: &Path) -> BTreeMap<String, u64> {
+    std::fs::read_dir(dir.join("shards"))
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().to_string(),
+                dynforge_shard::content_hash(&std::fs::read(e.path()).unwrap()),
+            )
+        })
+        .collect()
+}
+
+fn ledger_entries(dir: &Path) -> Vec<ledger::Entry> {
+    ledger::read(&dir.join("ledger.tsv")).unwrap()
+}
+
+/// Process ids whose parent is `pid`.
+fn children_of(pid: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|p| {
+            std::fs::read_to_string(format!("/proc/{p}/stat"))
+                .ok()
+                .and_then(|s| s.rsplit_once(')').map(|(_, rest)| rest.split_whitespace().nth(1).map(str::to_string)))
+                .flatten()
+                .is_some_and(|ppid| ppid == pid.to_string())
+        })
+        .collect()
+}
+
+fn kill(pid: u32, signal: &str) {
+    let _ = Command::new("kill").args([signal, &pid.to_string()]).status();
+}
+
+fn wait_for_entries(dir: &Path, n: usize, child: &mut Child) {
+    let start = Instant::now();
+    while ledger_entries(dir).len() < n {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended before {n} jobs were recorded");
+        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn assert_verifies(dir: &Path) {
+    let out = dynforge(&["verify", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "verify failed:\n{}", String::from_utf8_lossy(&out.stdout));
+}
+
+/// Every planned job has exactly one ledger entry.
+fn assert_exactly_once(dir: &Path, jobs: usize) {
+    let entries = ledger_entries(dir);
+    let ids: BTreeSet<u64> = entries.iter().map(|e| e.job_id).collect();
+    assert_eq!(entries.len(), jobs, "ledger entries");
+    assert_eq!(ids.len(), jobs, "distinct jobs");
+}
+
+#[test]
+fn a_small_run_with_two_workers_completes_verifies_and_reports_status() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dynforge(&generate_args(dir.path(), "4", "3", &["--workers", "2"]));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_exactly_once(dir.path(), 12);
+    assert_verifies(dir.path());
+    let status = dynforge(&["status", dir.path().to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!(v["live"], false);
+    assert_eq!(v["total"], 12);
+    assert_eq!(v["pending"], 0);
+    assert_eq!(v["done"].as_u64().unwrap() + v["discarded"].as_u64().unwrap(), 12);
+    // Running it again has nothing left to do and changes nothing.
+    let before = shard_hashes(dir.path());
+    assert!(dynforge(&generate_args(dir.path(), "4", "3", &["--workers", "2"])).status.success());
+    assert_eq!(shard_hashes(dir.path()), before);
+    assert_exactly_once(dir.path(), 12);
+}
+
+#[test]
+fn a_worker_killed_mid_job_is_replaced_and_every_job_recorded_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
+    wait_for_entries(dir.path(), 3, &mut child);
+    let workers = children_of(child.id());
+    assert_eq!(workers.len(), 2, "two worker processes");
+    kill(workers[0], "-9");
+    assert!(child.wait().unwrap().success(), "the run completes despite the kill");
+    assert_exactly_once(dir.path(), 24);
+    assert_verifies(dir.path());
+}
+
+#[test]
+fn killing_the_coordinator_and_resuming_gives_the_uninterrupted_dataset_and_partitions_add_up() {
+    let base = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(base.path(), "4", "4", &["--workers", "2"])).status.success());
+    let want = shard_hashes(base.path());
+    let want_ledger: BTreeSet<String> = ledger_entries(base.path()).iter().map(|e| format!("{e:?}")).collect();
+
+    // kill -9 of the coordinator and its workers at two points, then resume to the end.
+    let dir = tempfile::tempdir().unwrap();
+    for stop_at in [2, 9] {
+        let mut child = spawn(&generate_args(dir.path(), "4", "4", &["--workers", "2"]));
+        wait_for_entries(dir.path(), stop_at, &mut child);
+        let workers = children_of(child.id());
+        kill(child.id(), "-9");
+        for w in workers {
+            kill(w, "-9");
+        }
+        let _ = child.wait();
+    }
+    let out = dynforge(&generate_args(dir.path(), "4", "4", &["--workers", "2"]));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_exactly_once(dir.path(), 16);
+    assert_eq!(shard_hashes(dir.path()), want, "identical shards");
+    let got_ledger: BTreeSet<String> = ledger_entries(dir.path()).iter().map(|e| format!("{e:?}")).collect();
+    assert_eq!(got_ledger, want_ledger, "identical ledger records");
+    assert_verifies(dir.path());
+
+    // Two partitions together are the single run.
+    let mut union = BTreeMap::new();
+    for part in ["0/2", "1/2"] {
+        let p = tempfile::tempdir().unwrap();
+        assert!(
+            dynforge(&generate_args(p.path(), "4", "4", &["--workers", "1", "--partition", part])).status.success()
+        );
+        assert_verifies(p.path());
+        let hashes = shard_hashes(p.path());
+        assert!(hashes.keys().all(|k| !union.contains_key(k)), "partitions overlap");
+        union.extend(hashes);
+    }
+    assert_eq!(union, want);
+}
+
+#[test]
+fn sigterm_stops_cleanly_with_a_resumable_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
+    wait_for_entries(dir.path(), 2, &mut child);
+    kill(child.id(), "-TERM");
+    let start = Instant::now();
+    let status = child.wait().unwrap();
+    assert!(!status.success(), "an interrupted run exits non-zero");
+    assert!(start.elapsed() < Duration::from_secs(10), "it stops promptly");
+    assert!(children_of(child.id()).is_empty());
+    let out = dynforge(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_exactly_once(dir.path(), 24);
+    assert_verifies(dir.path());
+}
+
+#[test]
+fn two_concurrent_runs_on_one_host_both_complete() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let mut ca = spawn(&generate_args(a.path(), "3", "4", &["--workers", "1"]));
+    let mut cb = spawn(&generate_args(b.path(), "3", "4", &["--workers", "1"]));
+    assert!(ca.wait().unwrap().success());
+    assert!(cb.wait().unwrap().success());
+    assert_exactly_once(a.path(), 12);
+    assert_exactly_once(b.path(), 12);
+    assert_eq!(shard_hashes(a.path()), shard_hashes(b.path()), "same seed, same dataset");
+}
+
+#[test]
+fn bad_inputs_fail_clearly_and_lose_nothing() {
+    let stderr = |o: &Output| String::from_utf8_lossy(&o.stderr).to_string();
+    let file = tempfile::NamedTempFile::new().unwrap();
+    let o = dynforge(&generate_args(file.path(), "1", "1", &[]));
+    assert!(!o.status.success() && stderr(&o).contains(file.path().to_str().unwrap()), "{}", stderr(&o));
+
+    let dir = tempfile::tempdir().unwrap();
+    let o = dynforge(&generate_args(dir.path(), "0", "4", &[]));
+    assert!(!o.status.success() && stderr(&o).contains("--robots 0"), "{}", stderr(&o));
+    let o = dynforge(&generate_args(dir.path(), "2", "4", &["--partition", "3/2"]));
+    assert!(!o.status.success() && stderr(&o).contains("partition '3/2'"), "{}", stderr(&o));
+
+    // A finished run whose ledger gets a corrupted line: generate refuses and changes nothing.
+    assert!(dynforge(&generate_args(dir.path(), "1", "2", &["--workers", "1"])).status.success());
+    let ledger_path = dir.path().join("ledger.tsv");
+    let mut bytes = std::fs::read(&ledger_path).unwrap();
+    bytes[0] = b'7';
+    std::fs::write(&ledger_path, &bytes).unwrap();
+    let shards = shard_hashes(dir.path());
+    let o = dynforge(&generate_args(dir.path(), "1", "2", &["--workers", "1"]));
+    assert!(!o.status.success() && stderr(&o).contains("ledger.tsv:1: corrupt ledger line"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&ledger_path).unwrap(), bytes);
+    assert_eq!(shard_hashes(dir.path()), shards);
+
+    // Another configuration on the same directory is refused, naming the difference.
+    let other = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(other.path(), "1", "1", &["--workers", "1"])).status.success());
+    let o = dynforge(&generate_args(other.path(), "2", "1", &["--workers", "1"]));
+    assert!(!o.status.success() && stderr(&o).contains("robots: requested 2, directory has 1"), "{}", stderr(&o));
+}
