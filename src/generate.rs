@@ -149,6 +149,14 @@ impl Drop for Display {
     }
 }
 
+/// This process's own CPU time (user + system) in seconds, from /proc (in USER_HZ = 100 ticks per second).
+fn own_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 pub fn generate(args: GenerateArgs) -> Result<()> {
     let generator = match &args.config {
         Some(p) => {
@@ -192,12 +200,13 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
     let mut display = Display::new();
     let progress = run_generate(&cfg, &mut display)?;
     drop(display);
+    let wall = start.elapsed().as_secs_f64();
+    let cpu = own_cpu_seconds().map_or(String::new(), |c| format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall));
     println!(
-        "{} jobs: {} ({} resumed from an earlier run) in {:.1} s",
+        "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
         progress.total,
         Display::summary(&progress),
         progress.resumed,
-        start.elapsed().as_secs_f64()
     );
     Ok(())
 }
