@@ -201,7 +201,8 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
     let progress = run_generate(&cfg, &mut display)?;
     drop(display);
     let wall = start.elapsed().as_secs_f64();
-    let cpu = own_cpu_seconds().map_or(String::new(), |c| format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall));
+    let cpu = own_cpu_seconds()
+        .map_or(String::new(), |c| format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall));
     println!(
         "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
         progress.total,

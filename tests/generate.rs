@@ -227,3 +227,21 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
     let o = dynforge(&generate_args(other.path(), "2", "1", &["--workers", "1"]));
     assert!(!o.status.success() && stderr(&o).contains("robots: requested 2, directory has 1"), "{}", stderr(&o));
 }
+
+#[test]
+fn a_hung_job_is_retried_then_recorded_as_failed_with_the_reason() {
+    // A 1 ms deadline no job meets: every attempt counts as a hung worker, which is killed and replaced; after the
+    // third attempt the job is recorded as failed, and the run still finishes.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dynforge(&generate_args(dir.path(), "1", "1", &["--workers", "1", "--job-timeout", "0.001"]));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let entries = ledger_entries(dir.path());
+    assert_eq!(entries.len(), 1);
+    match &entries[0].status {
+        ledger::Status::Failed { message } => {
+            assert!(message.contains("hung") && message.contains("3 attempts"), "{message}")
+        }
+        other => panic!("expected a failure, got {other:?}"),
+    }
+    assert!(shard_hashes(dir.path()).is_empty(), "no shard for a failed job");
+}
