@@ -39,6 +39,8 @@ pub struct PidGains {
     pub kg_fraction: f64,
     /// Largest share of the effort limit the integral term may hold.
     pub windup_fraction: f64,
+    /// Control periods between gain schedules (inertia, Jacobian, stability scale).
+    pub schedule_every: usize,
 }
 
 impl Default for PidGains {
@@ -50,8 +52,17 @@ impl Default for PidGains {
             integral_ratio: 1.0,
             kg_fraction: 0.5,
             windup_fraction: 0.7,
+            schedule_every: 5,
         }
     }
+}
+
+/// Gains of one joint loop at the current pose (`kp` includes the gravity-aware term).
+#[derive(Debug, Clone, Copy, Default)]
+struct Scheduled {
+    kp: f64,
+    kd: f64,
+    ki: f64,
 }
 
 /// The controller state of one trajectory.
@@ -61,13 +72,14 @@ pub struct Pid {
     effort: [f64; 6],
     /// Integral term, as a torque.
     integral: [f64; 6],
+    scheduled: [Scheduled; 6],
 }
 
 impl Pid {
     /// A controller whose integral term starts at `hold` (e.g. the gravity torque of the start pose, so the arm
     /// starts in equilibrium instead of sagging), within the anti-windup bound.
     pub fn new(gains: PidGains, effort: [f64; 6], hold: [f64; 6]) -> Self {
-        let mut pid = Pid { gains, effort, integral: hold };
+        let mut pid = Pid { gains, effort, integral: hold, scheduled: [Scheduled::default(); 6] };
         pid.clamp_integral();
         pid
     }
@@ -79,14 +91,14 @@ impl Pid {
         }
     }
 
-    /// Torque command for errors `e = q_ref - q`, `ed = qd_ref - qd`, the end effector's `dz/dq` and the joint-space
-    /// mass matrix `m` at the current pose; then advances the integral by `dt`. Returns the saturated torque.
+    /// Schedules the loop gains on the pose: the joint-space mass matrix `m` and the end effector's `dz/dq`. The
+    /// inertia and the Jacobian change little over a few milliseconds, so callers refresh this every few periods.
     ///
     /// Per-joint gains ignore the coupling between joints, and in stretched poses the effective inertia of a joint
     /// (`1 / (M^-1)_ii`) is far below `M_ii`. The discrete loop stays stable while `dt lambda_max(M^-1 Kd)` is well
     /// below 2; it is kept at most 1 by scaling the loop's frequency (`Kd` by `s`, `Kp` and `Ki` by `s^2`, which
     /// keeps the damping ratio). `lambda_max` is that of the symmetric `Kd^1/2 M^-1 Kd^1/2`.
-    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dz_dq: &[f64; 6], m: &Matrix6<f64>, dt: f64) -> [f64; 6] {
+    pub fn schedule(&mut self, m: &Matrix6<f64>, dz_dq: &[f64; 6], dt: f64) {
         let g = &self.gains;
         let m_inv = m.cholesky().map(|c| c.inverse()).unwrap_or_else(Matrix6::zeros);
         let mut kp = [0.0; 6];
@@ -101,15 +113,27 @@ impl Pid {
         let root = Matrix6::from_diagonal(&nalgebra::Vector6::from(kd.map(f64::sqrt)));
         let lambda = (root * m_inv * root).symmetric_eigenvalues().max();
         let s = (1.0 / (dt * lambda)).min(1.0);
+        for j in 0..6 {
+            let kp_s = kp[j] * s * s;
+            self.scheduled[j] = Scheduled {
+                kp: kp_s * (1.0 + g.kg_fraction * dz_dq[j].abs()),
+                kd: kd[j] * s,
+                ki: kp_s * g.omega[j] * s * g.integral_ratio,
+            };
+        }
+    }
+
+    /// Torque command for errors `e = q_ref - q` and `ed = qd_ref - qd` with the last scheduled gains; then
+    /// advances the integral by `dt`. Returns the saturated torque.
+    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dt: f64) -> [f64; 6] {
         let mut out = [0.0; 6];
         for j in 0..6 {
-            let (kp, kd) = (kp[j] * s * s, kd[j] * s);
-            let ki = kp * g.omega[j] * s * g.integral_ratio;
-            let raw = kp * (1.0 + g.kg_fraction * dz_dq[j].abs()) * e[j] + self.integral[j] + kd * ed[j];
+            let k = self.scheduled[j];
+            let raw = k.kp * e[j] + self.integral[j] + k.kd * ed[j];
             out[j] = raw.clamp(-self.effort[j], self.effort[j]);
             let saturated_along_error = out[j] != raw && raw.signum() == e[j].signum();
             if !saturated_along_error {
-                self.integral[j] += ki * e[j] * dt;
+                self.integral[j] += k.ki * e[j] * dt;
             }
         }
         self.clamp_integral();

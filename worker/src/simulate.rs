@@ -160,16 +160,20 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
                 return Err(Discard::Collision { contact, t });
             }
         }
+        if k.is_multiple_of(cfg.gains.schedule_every.max(1)) {
+            let m = {
+                let m = crba(model, &mut data, &q);
+                Matrix6::from_fn(|r, c| m[(r, c)])
+            };
+            // `crba` left the link frames of q in `data`.
+            point_jacobian(model, &mut data, 5, &tip);
+            let dz_dq: Config6 = std::array::from_fn(|j| data.jacobian[(2, j)]);
+            pid.schedule(&m, &dz_dq, cfg.dt);
+        }
         let (q_ref, qd_ref, _) = mv.reference(t);
-        let m = {
-            let m = crba(model, &mut data, &q);
-            Matrix6::from_fn(|r, c| m[(r, c)])
-        };
-        point_jacobian(model, &mut data, 5, &tip);
-        let dz_dq: Config6 = std::array::from_fn(|j| data.jacobian[(2, j)]);
         let e: Config6 = std::array::from_fn(|j| q_ref[j] - q[j]);
         let ed: Config6 = std::array::from_fn(|j| qd_ref[j] - qd[j]);
-        let tau = pid.update(&e, &ed, &dz_dq, &m, cfg.dt);
+        let tau = pid.update(&e, &ed, cfg.dt);
         if (0..6).any(|j| tau[j].abs() >= effort[j]) {
             saturated += 1;
         }
