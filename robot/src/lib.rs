@@ -28,7 +28,9 @@ pub mod spatial;
 pub mod urdf;
 
 pub use data::Data;
-pub use dynamics::{Energy, aba, crba, energy, friction_torque, gravity_torque, nonlinear_effects, regressor, rnea};
+pub use dynamics::{
+    Energy, aba, aba_locked, crba, energy, friction_torque, gravity_torque, nonlinear_effects, regressor, rnea,
+};
 pub use jacobian::point_jacobian;
 pub use kinematics::{forward_kinematics, link_com};
 pub use model::{Model, ModelError, ModelProblem};

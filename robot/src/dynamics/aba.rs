@@ -15,7 +15,30 @@ use crate::spatial::{ArticulatedInertia, Motion};
 /// Joint accelerations `qdd = M^-1 (tau - C qd - G)` for the rigid-body torques `tau` (subtract friction first),
 /// into and returned from `data.ddq`.
 pub fn aba<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], tau: &[f64]) -> &'a [f64] {
+    run(model, data, q, qd, tau, None);
+    &data.ddq
+}
+
+/// ABA with the joints marked in `locked` held rigid (`qdd = 0`; their speed should be zero too): the free joints'
+/// accelerations into `data.ddq`, and for each locked joint the torque it must sustain to stay locked, beyond the
+/// applied `tau`, into `data.tau` (`tau_i - S_i . f_i`, zero for free joints). This is the dynamics of joints held
+/// by static friction, in one O(n) pass: a locked joint passes its child's articulated inertia on whole.
+pub fn aba_locked<'a>(
+    model: &Model,
+    data: &'a mut Data,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    locked: &[bool],
+) -> &'a [f64] {
+    assert_eq!(locked.len(), model.dof(), "lock mask has the wrong length");
+    run(model, data, q, qd, tau, Some(locked));
+    &data.ddq
+}
+
+fn run(model: &Model, data: &mut Data, q: &[f64], qd: &[f64], tau: &[f64], locked: Option<&[bool]>) {
     let n = model.dof();
+    let is_locked = |i: usize| locked.is_some_and(|l| l[i]);
     assert!(q.len() == n && qd.len() == n && tau.len() == n, "state has the wrong length");
     // Pass 1: placements, joint motion subspaces S = (z, o x z), twists, velocity-product accelerations, world
     // inertias and bias forces.
@@ -46,10 +69,13 @@ pub fn aba<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], tau: &[
         data.d_inv[i] = d_inv;
         data.u[i] = u;
         if i > 0 {
-            ia.rank1_sub(&u_vec, d_inv);
-            let mut pa = data.art_bias[i] + ia.apply(&data.c[i]);
-            pa.ang += u_vec.ang * (u * d_inv);
-            pa.lin += u_vec.lin * (u * d_inv);
+            let mut pa = data.art_bias[i];
+            if !is_locked(i) {
+                ia.rank1_sub(&u_vec, d_inv);
+                pa.ang += u_vec.ang * (u * d_inv);
+                pa.lin += u_vec.lin * (u * d_inv);
+            }
+            pa += ia.apply(&data.c[i]);
             data.art_inertia[i - 1] += ia;
             data.art_bias[i - 1] += pa;
         }
@@ -58,9 +84,16 @@ pub fn aba<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], tau: &[
     let mut a_parent = Motion::new(Vector3::zeros(), -model.gravity());
     for i in 0..n {
         let a = a_parent + data.c[i];
-        let qdd = (data.u[i] - a.dot(&data.u_vec[i])) * data.d_inv[i];
-        data.ddq[i] = qdd;
-        a_parent = a + data.s[i] * qdd;
+        if is_locked(i) {
+            // The wrench through the joint is IA a + pA; along the axis it must equal the joint's total torque.
+            data.ddq[i] = 0.0;
+            data.tau[i] = data.u[i] - a.dot(&data.u_vec[i]);
+            a_parent = a;
+        } else {
+            let qdd = (data.u[i] - a.dot(&data.u_vec[i])) * data.d_inv[i];
+            data.ddq[i] = qdd;
+            data.tau[i] = 0.0;
+            a_parent = a + data.s[i] * qdd;
+        }
     }
-    &data.ddq
 }

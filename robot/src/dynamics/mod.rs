@@ -11,7 +11,7 @@ mod friction;
 mod regressor;
 mod rnea;
 
-pub use aba::aba;
+pub use aba::{aba, aba_locked};
 pub use crba::crba;
 pub use energy::{Energy, energy};
 pub use friction::{friction_torque, sign};

@@ -10,7 +10,7 @@
 //!   sliding joint whose velocity changes sign during a substep stops there. Within a substep the friction sign is
 //!   fixed, so RK4 integrates a smooth ODE and nothing chatters.
 
-use dynforge_robot::{Data, Model, aba, crba, nonlinear_effects};
+use dynforge_robot::{Data, Model, aba, aba_locked, crba};
 use nalgebra::{Matrix6, Vector6};
 
 use super::{Engine, EngineKind};
@@ -90,25 +90,9 @@ impl<'m> NativeEngine<'m> {
     /// Dynamics with the `stuck` joints locked: the free joints' accelerations and the torque each locked joint needs
     /// to stay locked (to be compared with its Coulomb limit). `net` is the applied torque minus sliding friction.
     fn locked_dynamics(&mut self, q: &Config6, qd: &Config6, net: &Config6, stuck: &[bool; 6]) -> (Config6, Config6) {
-        let nle = nonlinear_effects(self.model, &mut self.data, q, qd);
-        let b: Config6 = std::array::from_fn(|j| nle[j]);
-        let m = self.mass_matrix(q);
-        let mut reduced = m;
-        let mut rhs = Vector6::from_fn(|j, _| net[j] - b[j]);
-        for j in 0..6 {
-            if stuck[j] {
-                reduced.row_mut(j).fill(0.0);
-                reduced.column_mut(j).fill(0.0);
-                reduced[(j, j)] = 1.0;
-                rhs[j] = 0.0;
-            }
-        }
-        let qdd = reduced.cholesky().map(|c| c.solve(&rhs)).unwrap_or_else(|| Vector6::repeat(f64::NAN));
-        let hold_torque = m * qdd;
-        (
-            std::array::from_fn(|j| qdd[j]),
-            std::array::from_fn(|j| if stuck[j] { net[j] - b[j] - hold_torque[j] } else { 0.0 }),
-        )
+        let qdd = aba_locked(self.model, &mut self.data, q, qd, net, stuck);
+        let qdd: Config6 = std::array::from_fn(|j| qdd[j]);
+        (qdd, std::array::from_fn(|j| self.data.tau[j]))
     }
 
     /// Decides which joints at rest stay stuck, and the friction sign of every joint for the next substep.
