@@ -169,8 +169,8 @@ mod tests {
         ]
     }
 
-    #[test]
-    fn entries_round_trip_across_reopen() {
+    /// A ledger holding `entries()`, in a temporary directory kept alive by the first value.
+    fn written_ledger() -> (tempfile::TempDir, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("ledger.tsv");
         let (mut l, existing) = Ledger::open(&path).unwrap();
@@ -178,7 +178,12 @@ mod tests {
         for e in entries() {
             l.append(&e).unwrap();
         }
-        drop(l);
+        (dir, path)
+    }
+
+    #[test]
+    fn entries_round_trip_across_reopen() {
+        let (_dir, path) = written_ledger();
         let (_, back) = Ledger::open(&path).unwrap();
         let mut want = entries();
         want[2].status = Status::Failed { message: "disk full again".into() };
@@ -188,13 +193,7 @@ mod tests {
 
     #[test]
     fn a_torn_last_line_is_dropped_and_cut_off() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("ledger.tsv");
-        let (mut l, _) = Ledger::open(&path).unwrap();
-        for e in entries() {
-            l.append(&e).unwrap();
-        }
-        drop(l);
+        let (_dir, path) = written_ledger();
         let full = std::fs::read(&path).unwrap();
         // Simulate a crash half-way through a fourth line.
         let mut torn = full.clone();
@@ -210,13 +209,7 @@ mod tests {
 
     #[test]
     fn a_corrupt_line_is_an_error_naming_file_and_line_and_changes_nothing() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("ledger.tsv");
-        let (mut l, _) = Ledger::open(&path).unwrap();
-        for e in entries() {
-            l.append(&e).unwrap();
-        }
-        drop(l);
+        let (_dir, path) = written_ledger();
         let mut bytes = std::fs::read(&path).unwrap();
         let second_line = bytes.iter().position(|&b| b == b'\n').unwrap() + 1;
         bytes[second_line] = b'9'; // job id 1 -> 9: the checksum no longer matches
