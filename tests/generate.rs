@@ -117,6 +117,11 @@ fn a_worker_killed_mid_job_is_replaced_and_every_job_recorded_once() {
     let dir = tempfile::tempdir().unwrap();
     let mut child = spawn(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
     wait_for_entries(dir.path(), 3, &mut child);
+    // A monitor in another process sees the live figures and disturbs nothing.
+    let status = dynforge(&["status", dir.path().to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&status.stdout).unwrap();
+    assert_eq!((v["live"].as_bool(), v["total"].as_u64()), (Some(true), Some(24)), "{v}");
+    assert_eq!(v["coordinator_pid"].as_u64(), Some(child.id() as u64));
     let workers = children_of(child.id());
     assert_eq!(workers.len(), 2, "two worker processes");
     kill(workers[0], "-9");

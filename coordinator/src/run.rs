@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use dynforge_ipc::{Coordinator, IpcError, JobReport, JobRequest, RunId, StatusMsg};
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::Job;
+use dynforge_worker::job::{Job, shard_name};
 use dynforge_worker::simulate::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
@@ -260,6 +260,13 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
             Status::Failed { message } => {
                 progress.failed += 1;
                 observer.message(&format!("robot {} trajectory {} failed: {message}", job.robot, job.trajectory));
+                // A worker killed as hung may still have finished its shard: a failed job keeps no shard.
+                let shard = cfg.dir.join(SHARDS).join(shard_name(&job, cfg.sim.engine.name()));
+                match std::fs::remove_file(&shard) {
+                    Ok(()) => {}
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                    Err(source) => return Err(GenerateError::Dir { dir: shard.display().to_string(), source }),
+                }
             }
         }
         ledger.append(&Entry { job_id: id, robot: job.robot, trajectory: job.trajectory, status })?;
@@ -342,7 +349,7 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
             }
             for (k, started) in running.iter().enumerate().filter_map(|(k, r)| r.map(|(_, t)| (k, t))) {
                 if started.elapsed() > cfg.job_timeout && !lost.iter().any(|(s, _)| *s == k) {
-                    lost.push((k, format!("its worker hung (no result after {:.0} s)", cfg.job_timeout.as_secs_f64())));
+                    lost.push((k, format!("its worker hung (no result after {} s)", cfg.job_timeout.as_secs_f64())));
                 }
             }
             for (k, why) in lost {
@@ -388,6 +395,8 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     // Tells the workers to stop, waits for them, and removes the run's shared-memory files.
     let _ = ipc.shutdown(Duration::from_secs(5));
     drop(procs);
+    // Workers killed mid-write (dead, hung, interrupted) leave partial temporary files; no writer is left now.
+    remove_leftovers(&cfg.dir.join(SHARDS)).map_err(dir_err)?;
     progress.in_flight = 0;
     progress.slots = vec![None; workers];
     progress.rate = (progress.finished() - progress.resumed) as f64 / start.elapsed().as_secs_f64().max(1e-9);
