@@ -1,0 +1,146 @@
+//! Joint trajectories from shards and ROS 2 bags, with joints matched by name to the robot model's order.
+
+use std::path::Path;
+
+use dynforge_shard::Bag;
+
+/// Samples of a robot's joints: row-major `[t][joint]` arrays in the model's joint order.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct JointTrajectory {
+    /// Joint names, in the model's order.
+    pub names: Vec<String>,
+    /// Sample times [s], strictly increasing.
+    pub t: Vec<f64>,
+    pub q: Vec<f64>,
+    pub qd: Vec<f64>,
+    pub tau: Vec<f64>,
+}
+
+impl JointTrajectory {
+    pub fn joints(&self) -> usize {
+        self.names.len()
+    }
+    pub fn len(&self) -> usize {
+        self.t.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.t.is_empty()
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{file}: {problem}")]
+pub struct SourceError {
+    pub file: String,
+    pub problem: String,
+}
+
+/// The `/joint_states` of `bag` for the joints `names` (in that order), matched by name in every message. Messages
+/// must carry position, velocity and effort for each of these joints; other joints are ignored. Samples are sorted
+/// by stamp; repeated stamps keep the first message.
+pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTrajectory, SourceError> {
+    let err = |problem: String| SourceError { file: file.display().to_string(), problem };
+    if bag.joint_states.is_empty() {
+        return Err(err("no sensor_msgs/msg/JointState messages on /joint_states".into()));
+    }
+    let n = names.len();
+    // (stamp, position, velocity, effort) per message, in the model's joint order.
+    type Row = (i64, Vec<f64>, Vec<f64>, Vec<f64>);
+    let mut rows: Vec<Row> = Vec::with_capacity(bag.joint_states.len());
+    let mut columns: Vec<usize> = Vec::with_capacity(n);
+    let mut last_layout: Option<&[String]> = None;
+    for (k, m) in bag.joint_states.iter().enumerate() {
+        if last_layout != Some(&m.name[..]) {
+            columns.clear();
+            for want in names {
+                let c = m.name.iter().position(|have| have == want).ok_or_else(|| {
+                    err(format!("joint_states message {k} has no joint '{want}' (it has {:?})", m.name))
+                })?;
+                columns.push(c);
+            }
+            last_layout = Some(&m.name[..]);
+        }
+        let pick = |v: &[f64], what: &str| -> Result<Vec<f64>, SourceError> {
+            if v.len() != m.name.len() {
+                return Err(err(format!(
+                    "joint_states message {k}: {} {what} values for {} joints",
+                    v.len(),
+                    m.name.len()
+                )));
+            }
+            Ok(columns.iter().map(|&c| v[c]).collect())
+        };
+        rows.push((
+            m.stamp_ns(),
+            pick(&m.position, "position")?,
+            pick(&m.velocity, "velocity")?,
+            pick(&m.effort, "effort")?,
+        ));
+    }
+    rows.sort_by_key(|r| r.0);
+    rows.dedup_by_key(|r| r.0);
+    let mut out = JointTrajectory { names: names.to_vec(), ..JointTrajectory::default() };
+    for (stamp, q, qd, tau) in rows {
+        out.t.push(stamp as f64 * 1e-9);
+        out.q.extend(q);
+        out.qd.extend(qd);
+        out.tau.extend(tau);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynforge_proto::shard::JointState;
+
+    fn message(t_ns: i64, names: &[&str], base: f64) -> JointState {
+        let idx = |n: &str| n.strip_prefix("j").and_then(|i| i.parse::<f64>().ok()).unwrap_or(99.0);
+        JointState {
+            sec: (t_ns / 1_000_000_000) as i32,
+            nanosec: (t_ns % 1_000_000_000) as u32,
+            frame_id: String::new(),
+            name: names.iter().map(|n| n.to_string()).collect(),
+            position: names.iter().map(|n| base + idx(n)).collect(),
+            velocity: names.iter().map(|n| 10.0 * idx(n)).collect(),
+            effort: names.iter().map(|n| -idx(n)).collect(),
+        }
+    }
+
+    #[test]
+    fn joints_are_matched_by_name_and_samples_sorted_by_stamp() {
+        let names: Vec<String> = ["j0", "j1", "j2"].iter().map(|s| s.to_string()).collect();
+        let bag = Bag {
+            joint_states: vec![
+                message(2_000_000, &["j2", "j0", "j1", "gripper"], 0.2),
+                message(0, &["j0", "j1", "j2"], 0.0),
+                message(1_000_000, &["j1", "j2", "j0"], 0.1),
+                message(1_000_000, &["j1", "j2", "j0"], 9.9),
+            ],
+            ..Bag::default()
+        };
+        let t = from_bag(&bag, &names, Path::new("rec.mcap")).unwrap();
+        assert_eq!(t.t, [0.0, 0.001, 0.002]);
+        for k in 0..3 {
+            let base = [0.0, 0.1, 0.2][k];
+            assert_eq!(&t.q[3 * k..3 * k + 3], &[base, base + 1.0, base + 2.0]);
+            assert_eq!(&t.qd[3 * k..3 * k + 3], &[0.0, 10.0, 20.0]);
+            assert_eq!(&t.tau[3 * k..3 * k + 3], &[0.0, -1.0, -2.0]);
+        }
+    }
+
+    #[test]
+    fn missing_joints_or_empty_bags_are_errors_naming_the_file() {
+        let names: Vec<String> = ["j0", "j7"].iter().map(|s| s.to_string()).collect();
+        let bag = Bag { joint_states: vec![message(0, &["j0", "j1"], 0.0)], ..Bag::default() };
+        let e = from_bag(&bag, &names, Path::new("robot.mcap")).unwrap_err().to_string();
+        assert!(e.starts_with("robot.mcap: ") && e.contains("no joint 'j7'"), "{e}");
+        let e = from_bag(&Bag::default(), &names, Path::new("robot.mcap")).unwrap_err().to_string();
+        assert!(e.contains("no sensor_msgs/msg/JointState"), "{e}");
+        let mut short = message(0, &["j0", "j7"], 0.0);
+        short.effort.pop();
+        let e =
+            from_bag(&Bag { joint_states: vec![short], ..Bag::default() }, &names, Path::new("r.mcap")).unwrap_err();
+        assert!(e.to_string().contains("1 effort values for 2 joints"), "{e}");
+    }
+}
