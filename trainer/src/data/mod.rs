@@ -1,6 +1,8 @@
 //! The data pipeline, one module per stage: reading joint trajectories (`source`), timestep unification
-//! (`resample`), windowing with the offset-based secondary sampler (`window`), and the robot-level split (`split`).
+//! (`resample`), kinematic enrichment with pruned Jacobian features (`features`), windowing with the offset-based
+//! secondary sampler (`window`), and the robot-level split (`split`).
 
+pub mod features;
 pub mod resample;
 pub mod source;
 pub mod split;
