@@ -1,5 +1,6 @@
 //! The `dynforge` command line: parses arguments and dispatches to the library crates.
 
+mod dataset;
 mod generate;
 mod robot;
 mod simulate;
@@ -27,12 +28,20 @@ enum Command {
     Status(generate::StatusArgs),
     /// Check every shard of a dataset against its ledger and manifest.
     Verify(generate::VerifyArgs),
+    /// Inspect a dataset of shards.
+    #[command(subcommand)]
+    Dataset(dataset::DatasetCommand),
     /// A worker process (started by `generate`).
     #[command(hide = true)]
     Worker(generate::WorkerArgs),
 }
 
 fn main() -> std::process::ExitCode {
+    // Like any Unix filter, end quietly when the reader of our output goes away (`dynforge ... | head`).
+    // SAFETY: restoring the default disposition of SIGPIPE before any thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Robot(args) => robot::run(args),
@@ -41,6 +50,7 @@ fn main() -> std::process::ExitCode {
         Command::Status(args) => generate::status(args),
         Command::Verify(args) => generate::verify(args),
         Command::Worker(args) => generate::worker(args),
+        Command::Dataset(cmd) => dataset::run(cmd),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

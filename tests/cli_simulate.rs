@@ -42,3 +42,28 @@ fn simulate_rejects_bad_arguments_with_clear_messages() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains(file.to_str().unwrap()));
 }
+
+#[test]
+fn dataset_stats_reports_the_shards_of_a_directory() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dynforge(&[
+        "simulate",
+        "--seed",
+        "2",
+        "--robot",
+        "1",
+        "--trajectory",
+        "0",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    let out = dynforge(&["dataset", "stats", dir.path().to_str().unwrap(), "--window", "64:64:16"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("1 robots, 1 trajectories"), "{text}");
+    assert!(text.contains("64 x  64, ssr  16:  4.096 s,  6.25 %"), "{text}");
+    assert!(text.contains("mass_l2"), "{text}");
+    let bad = dynforge(&["dataset", "stats", dir.path().to_str().unwrap(), "--window", "64:0:16"]);
+    assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("LEN:STRIDE:SSR"));
+}

@@ -1,0 +1,71 @@
+//! `dynforge dataset stats`: what a dataset holds and how many windows each preprocessing geometry makes of it.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use dynforge_proto::LABELS;
+use dynforge_trainer::data::dataset::stats;
+use dynforge_trainer::data::window::WindowSpec;
+
+#[derive(Subcommand)]
+pub enum DatasetCommand {
+    /// Robots, trajectories, hours of motion, windows per configuration and label ranges of a dataset.
+    Stats(StatsArgs),
+}
+
+#[derive(Args)]
+pub struct StatsArgs {
+    /// A `generate` output directory, or a folder of shards.
+    dir: PathBuf,
+    /// Window geometries to count, as LEN:STRIDE:SSR (default: the paper's grid around its best, 64:64:16).
+    #[arg(long = "window", value_name = "LEN:STRIDE:SSR")]
+    windows: Vec<String>,
+}
+
+fn parse_spec(s: &str) -> Result<WindowSpec> {
+    let parts: Vec<usize> = s
+        .split(':')
+        .map(str::parse)
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("--window {s}: expected LEN:STRIDE:SSR"))?;
+    match parts[..] {
+        [len, stride, ssr] if len > 0 && stride > 0 && ssr > 0 => Ok(WindowSpec { len, stride, ssr }),
+        _ => anyhow::bail!("--window {s}: expected three positive numbers LEN:STRIDE:SSR"),
+    }
+}
+
+pub fn run(cmd: DatasetCommand) -> Result<()> {
+    let DatasetCommand::Stats(args) = cmd;
+    let specs: Vec<WindowSpec> = if args.windows.is_empty() {
+        [(32, 64, 16), (64, 32, 16), (64, 64, 16), (64, 64, 8), (128, 64, 16)]
+            .map(|(len, stride, ssr)| WindowSpec { len, stride, ssr })
+            .to_vec()
+    } else {
+        args.windows.iter().map(|s| parse_spec(s)).collect::<Result<_>>()?
+    };
+    let s = stats(&args.dir, &specs)?;
+    println!("{}: {} robots, {} trajectories, {:.2} h of motion", args.dir.display(), s.robots, s.shards, s.hours);
+    println!("windows (len x stride, ssr): window span, utilisation, count");
+    for spec in &specs {
+        println!(
+            "  {:>3} x {:>3}, ssr {:>3}: {:>6.3} s, {:>5.2} %, {}",
+            spec.len,
+            spec.stride,
+            spec.ssr,
+            spec.span(1e-3),
+            100.0 * spec.utilisation(),
+            s.windows[&(spec.len, spec.stride, spec.ssr)]
+        );
+    }
+    if s.shards > 0 {
+        println!("label ranges:");
+        for (l, (lo, hi)) in LABELS.iter().zip(&s.label_ranges) {
+            println!("  {:<12} {:>12.6} .. {:<12.6} {}", l.name, lo, hi, l.kind.unit());
+        }
+    }
+    for skipped in &s.skipped {
+        eprintln!("skipped: {skipped}");
+    }
+    Ok(())
+}

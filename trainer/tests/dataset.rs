@@ -1,0 +1,61 @@
+//! The data pipeline on real shards written by the worker.
+
+use dynforge_robot::Data;
+use dynforge_robot::generator::GeneratorConfig;
+use dynforge_robot::parameters::labels;
+use dynforge_trainer::data::dataset::{prepare, row_width, stats, windows};
+use dynforge_trainer::data::features::JacobianFeatures;
+use dynforge_trainer::data::window::WindowSpec;
+use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::simulate::SimConfig;
+
+#[test]
+fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
+    let job = Job { seed: 6, robot: 3, trajectory: 2 };
+    let path = match runner.run(&job, dir.path()).unwrap() {
+        Outcome::Written { path, .. } => path,
+        Outcome::Discarded(d) => panic!("{d}"),
+    };
+    let robot = runner.simulate(&job).unwrap().robot;
+    let p = prepare(&path, None).unwrap();
+    assert_eq!(p.model, robot.model, "the robot comes from /robot_description");
+    assert_eq!(p.labels.unwrap(), labels(&robot.model).unwrap());
+    assert_eq!(p.robot, Some(3));
+    let bag = dynforge_shard::read(&path).unwrap();
+    assert_eq!(p.trajectory.len(), bag.joint_states.len(), "a 1 kHz shard is already on the grid");
+
+    let spec = WindowSpec::default();
+    let features = JacobianFeatures::new(&p.model);
+    let width = row_width(&p.model, &features);
+    assert_eq!(width, 18 + features.len());
+    let (count, data) = windows(&p, &spec, &features);
+    assert_eq!(count, spec.windows(p.trajectory.len()).len());
+    assert!(count >= 1, "a >= 6 s trajectory holds at least one 4.096 s window");
+    assert_eq!(data.len(), count * spec.len * width);
+    // Window 0, step 5 is source sample 5 * 64: its state, torque and features, as f32.
+    let row = &data[5 * width..6 * width];
+    let m = &bag.joint_states[5 * 64];
+    for j in 0..6 {
+        assert_eq!(row[j], m.position[j] as f32);
+        assert_eq!(row[6 + j], m.velocity[j] as f32);
+        assert_eq!(row[12 + j], m.effort[j] as f32);
+    }
+    let mut jac = Vec::new();
+    features.evaluate(&p.model, &mut Data::new(&p.model), &m.position, &mut jac);
+    assert_eq!(&row[18..], jac.iter().map(|v| *v as f32).collect::<Vec<_>>().as_slice());
+
+    let s = stats(dir.path(), &[spec, WindowSpec { len: 32, stride: 32, ssr: 8 }]).unwrap();
+    assert_eq!((s.shards, s.robots), (1, 1));
+    assert!((s.hours - p.trajectory.len() as f64 / 3.6e6).abs() < 1e-12);
+    assert_eq!(s.windows[&(64, 64, 16)], count);
+    assert_eq!(s.windows[&(32, 32, 8)], WindowSpec { len: 32, stride: 32, ssr: 8 }.windows(p.trajectory.len()).len());
+    assert_eq!(s.label_ranges[12], (p.labels.unwrap()[12], p.labels.unwrap()[12]));
+
+    // A corrupt file among the shards is skipped with its name, not fatal.
+    std::fs::write(dir.path().join("broken.mcap"), b"not an mcap").unwrap();
+    let s = stats(dir.path(), &[spec]).unwrap();
+    assert_eq!(s.shards, 1);
+    assert!(s.skipped.len() == 1 && s.skipped[0].contains("broken.mcap"), "{:?}", s.skipped);
+}
