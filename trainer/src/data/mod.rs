@@ -2,6 +2,7 @@
 //! (`resample`), kinematic enrichment with pruned Jacobian features (`features`), windowing with the offset-based
 //! secondary sampler (`window`), and the robot-level split (`split`).
 
+pub mod cache;
 pub mod dataset;
 pub mod features;
 pub mod resample;

@@ -1,0 +1,166 @@
+//! The window cache: a run directory's preprocessed windows on disk, keyed by a hash of what determines them (the
+//! run manifest, the ledger's records, the window geometry, the feature list and this format's version), reused
+//! across trainer runs and rebuilt when any of these changes. Written atomically (temporary file, fsync, rename):
+//! a crash mid-write leaves the previous state; a damaged file fails its checksum and is rebuilt.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::NUM_LABELS;
+use dynforge_shard::content_hash;
+
+use super::dataset::{DataError, prepare, row_width, windows};
+use super::features::JacobianFeatures;
+use super::window::WindowSpec;
+
+const MAGIC: &[u8; 8] = b"DFWIN001";
+
+/// Windows of a whole dataset, with one label vector and robot id per window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CachedWindows {
+    pub spec: WindowSpec,
+    /// Values per time step of a window.
+    pub width: usize,
+    /// `count x len x width` values.
+    pub data: Vec<f32>,
+    pub labels: Vec<[f64; NUM_LABELS]>,
+    pub robots: Vec<u64>,
+    /// Whether this came from the cache file.
+    pub hit: bool,
+}
+
+impl CachedWindows {
+    pub fn count(&self) -> usize {
+        self.labels.len()
+    }
+}
+
+fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, DataError> {
+    let read = |name: &str| {
+        std::fs::read(dir.join(name))
+            .map_err(|e| DataError::Content { file: dir.join(name).display().to_string(), problem: e.to_string() })
+    };
+    let mut material = read("manifest.toml")?;
+    // The ledger's records, in a canonical order: completion order differs from run to run.
+    let ledger = String::from_utf8_lossy(&read("ledger.tsv")?).to_string();
+    let mut lines: Vec<&str> = ledger.lines().collect();
+    lines.sort_unstable();
+    material.extend(lines.join("\n").bytes());
+    material.extend(format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, super::dataset::GRID_DT).bytes());
+    for e in &features.entries {
+        material.extend(e.name.bytes());
+    }
+    material.extend(MAGIC);
+    Ok(content_hash(&material))
+}
+
+fn encode(w: &CachedWindows) -> Vec<u8> {
+    let mut out = Vec::with_capacity(64 + w.data.len() * 4 + w.labels.len() * (NUM_LABELS * 8 + 8));
+    out.extend(MAGIC);
+    for v in [w.spec.len, w.spec.stride, w.spec.ssr, w.width, w.count()] {
+        out.extend((v as u64).to_le_bytes());
+    }
+    out.extend(w.data.iter().flat_map(|v| v.to_le_bytes()));
+    out.extend(w.labels.iter().flatten().flat_map(|v| v.to_le_bytes()));
+    out.extend(w.robots.iter().flat_map(|v| v.to_le_bytes()));
+    let check = content_hash(&out);
+    out.extend(check.to_le_bytes());
+    out
+}
+
+fn decode(bytes: &[u8]) -> Option<CachedWindows> {
+    let (body, check) = bytes.split_at_checked(bytes.len().checked_sub(8)?)?;
+    if content_hash(body).to_le_bytes() != check || !body.starts_with(MAGIC) {
+        return None;
+    }
+    let u64_at = |i: usize| u64::from_le_bytes(body[8 + 8 * i..16 + 8 * i].try_into().ok()?).try_into().ok();
+    let (len, stride, ssr, width, count): (usize, usize, usize, usize, usize) =
+        (u64_at(0)?, u64_at(1)?, u64_at(2)?, u64_at(3)?, u64_at(4)?);
+    let values = count.checked_mul(len)?.checked_mul(width)?;
+    let mut at = 48;
+    let take = |at: &mut usize, n: usize| -> Option<&[u8]> {
+        let s = body.get(*at..at.checked_add(n)?)?;
+        *at += n;
+        Some(s)
+    };
+    let data =
+        take(&mut at, values * 4)?.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4"))).collect();
+    let flat: Vec<f64> = take(&mut at, count * NUM_LABELS * 8)?
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("8")))
+        .collect();
+    let labels = flat.chunks_exact(NUM_LABELS).map(|c| c.try_into().expect("38")).collect();
+    let robots =
+        take(&mut at, count * 8)?.chunks_exact(8).map(|c| u64::from_le_bytes(c.try_into().expect("8"))).collect();
+    (at == body.len()).then_some(CachedWindows {
+        spec: WindowSpec { len, stride, ssr },
+        width,
+        data,
+        labels,
+        robots,
+        hit: true,
+    })
+}
+
+/// Cache file of a run directory for this preprocessing.
+pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, DataError> {
+    Ok(dir.join("cache").join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
+}
+
+/// The windows of every shard of the `generate` directory `dir`: from the cache if it is current, else built
+/// (calling `progress(done, total)` per shard) and cached. Shards that cannot be read are skipped and returned.
+pub fn load_or_build(
+    dir: &Path,
+    spec: &WindowSpec,
+    features: &JacobianFeatures,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<(CachedWindows, Vec<String>), DataError> {
+    let path = cache_path(dir, spec, features)?;
+    if let Some(w) = std::fs::read(&path).ok().and_then(|b| decode(&b)) {
+        return Ok((w, Vec::new()));
+    }
+    let io = |p: &Path| {
+        let shown = p.display().to_string();
+        move |e: std::io::Error| DataError::Content { file: shown.clone(), problem: e.to_string() }
+    };
+    let shards = dir.join("shards");
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&shards)
+        .map_err(io(&shards))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    paths.sort();
+    let mut out =
+        CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
+    let mut skipped = Vec::new();
+    for (k, p) in paths.iter().enumerate() {
+        match prepare(p, None) {
+            Ok(prep) => match (prep.labels, prep.robot) {
+                (Some(y), Some(robot)) => {
+                    out.width = row_width(&prep.model, features);
+                    let (count, data) = windows(&prep, spec, features);
+                    out.data.extend(data);
+                    out.labels.extend(std::iter::repeat_n(y, count));
+                    out.robots.extend(std::iter::repeat_n(robot, count));
+                }
+                _ => skipped.push(format!("{}: no labels or robot id (not a dataset shard)", p.display())),
+            },
+            Err(e) => skipped.push(e.to_string()),
+        }
+        progress(k + 1, paths.len());
+    }
+    let cache_dir = dir.join("cache");
+    std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
+    let tmp = cache_dir.join(format!(".{}.tmp", std::process::id()));
+    let written = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(&encode(&out))?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, &path)
+    })();
+    if let Err(e) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io(&path)(e));
+    }
+    Ok((out, skipped))
+}

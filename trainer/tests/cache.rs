@@ -1,0 +1,70 @@
+//! The window cache: a hit returns identical tensors; a changed configuration or dataset misses; a damaged file is
+//! rebuilt.
+
+use dynforge_robot::generator::GeneratorConfig;
+use dynforge_trainer::data::cache::{cache_path, load_or_build};
+use dynforge_trainer::data::features::JacobianFeatures;
+use dynforge_trainer::data::window::WindowSpec;
+use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::simulate::SimConfig;
+
+#[test]
+fn cache_hits_misses_and_rebuilds() {
+    let dir = tempfile::tempdir().unwrap();
+    let shards = dir.path().join("shards");
+    std::fs::create_dir_all(&shards).unwrap();
+    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
+    for trajectory in 0..2 {
+        runner.run(&Job { seed: 5, robot: 1, trajectory }, &shards).unwrap();
+    }
+    // The cache key reads the run's manifest and ledger as bytes.
+    std::fs::write(dir.path().join("manifest.toml"), "seed = 5\n").unwrap();
+    std::fs::write(dir.path().join("ledger.tsv"), "b\na\n").unwrap();
+    let features =
+        JacobianFeatures::new(&runner.simulate(&Job { seed: 5, robot: 1, trajectory: 0 }).unwrap().robot.model);
+    let spec = WindowSpec::default();
+
+    let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap();
+    assert!(!built.hit && skipped.is_empty());
+    assert!(built.count() >= 2);
+    assert_eq!(built.data.len(), built.count() * spec.len * built.width);
+    assert!(built.robots.iter().all(|&r| r == 1));
+    let (again, _) = load_or_build(dir.path(), &spec, &features, |_, _| panic!("a hit reads no shard")).unwrap();
+    assert!(again.hit);
+    assert_eq!(CachedEq(&again), CachedEq(&built));
+
+    // Ledger lines in another order are the same dataset; an extra record is not.
+    std::fs::write(dir.path().join("ledger.tsv"), "a\nb\n").unwrap();
+    assert!(load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+    std::fs::write(dir.path().join("ledger.tsv"), "a\nb\nc\n").unwrap();
+    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+
+    // Another geometry misses.
+    let other = WindowSpec { len: 32, stride: 64, ssr: 16 };
+    let (w, _) = load_or_build(dir.path(), &other, &features, |_, _| {}).unwrap();
+    assert!(!w.hit && w.count() > built.count());
+
+    // A damaged cache file fails its checksum and is rebuilt to the same content.
+    let path = cache_path(dir.path(), &spec, &features).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 1;
+    std::fs::write(&path, &bytes).unwrap();
+    let (rebuilt, _) = load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap();
+    assert!(!rebuilt.hit);
+    assert_eq!(CachedEq(&rebuilt), CachedEq(&built));
+    // A truncated file (a crash before the atomic rename cannot produce one, a disk error can) is rebuilt too.
+    std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
+    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+}
+
+/// Equality of the cached content, ignoring whether it came from disk.
+#[derive(Debug)]
+struct CachedEq<'a>(&'a dynforge_trainer::data::cache::CachedWindows);
+
+impl PartialEq for CachedEq<'_> {
+    fn eq(&self, o: &Self) -> bool {
+        let (a, b) = (self.0, o.0);
+        a.spec == b.spec && a.width == b.width && a.data == b.data && a.labels == b.labels && a.robots == b.robots
+    }
+}
