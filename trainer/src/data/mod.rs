@@ -5,6 +5,8 @@
 pub mod cache;
 pub mod dataset;
 pub mod features;
+pub mod follow;
+pub mod normalize;
 pub mod resample;
 pub mod source;
 pub mod split;

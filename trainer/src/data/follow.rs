@@ -1,0 +1,67 @@
+//! Training while generating: picks up shards as they appear. Shards are renamed into place whole, so a listed
+//! `*.mcap` is always complete; the writers' temporary files (`.name.tmp`) are never picked up.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// Remembers which shards of a directory were already handed out.
+#[derive(Debug, Default)]
+pub struct ShardFollower {
+    dir: PathBuf,
+    seen: BTreeSet<PathBuf>,
+}
+
+impl ShardFollower {
+    /// Follows `dir` (a `generate` directory's `shards/`, or any folder of shards).
+    pub fn new(dir: &Path) -> Self {
+        let dir = if dir.join("shards").is_dir() { dir.join("shards") } else { dir.to_path_buf() };
+        ShardFollower { dir, seen: BTreeSet::new() }
+    }
+
+    /// Shards that appeared since the last call, sorted by name. A missing directory yields nothing yet.
+    pub fn poll(&mut self) -> std::io::Result<Vec<PathBuf>> {
+        let listing = match std::fs::read_dir(&self.dir) {
+            Ok(l) => l,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) => return Err(e),
+        };
+        let mut fresh = Vec::new();
+        for entry in listing {
+            let path = entry?.path();
+            let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+            if name.starts_with('.') || !name.ends_with(".mcap") {
+                continue;
+            }
+            if self.seen.insert(path.clone()) {
+                fresh.push(path);
+            }
+        }
+        fresh.sort();
+        Ok(fresh)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_new_complete_shards_are_handed_out_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut f = ShardFollower::new(&dir.path().join("missing"));
+        assert!(f.poll().unwrap().is_empty());
+        let mut f = ShardFollower::new(dir.path());
+        std::fs::write(dir.path().join("r000001-t00-native.mcap"), b"x").unwrap();
+        std::fs::write(dir.path().join(".r000002-t00-native.mcap.77.tmp"), b"partial").unwrap();
+        std::fs::write(dir.path().join("notes.txt"), b"x").unwrap();
+        let first = f.poll().unwrap();
+        assert_eq!(first, [dir.path().join("r000001-t00-native.mcap")]);
+        assert!(f.poll().unwrap().is_empty());
+        // The writer renames its temporary file into place: now it is a shard.
+        std::fs::rename(dir.path().join(".r000002-t00-native.mcap.77.tmp"), dir.path().join("r000002-t00-native.mcap"))
+            .unwrap();
+        std::fs::write(dir.path().join("r000000-t03-native.mcap"), b"x").unwrap();
+        let second = f.poll().unwrap();
+        assert_eq!(second, [dir.path().join("r000000-t03-native.mcap"), dir.path().join("r000002-t00-native.mcap")]);
+    }
+}
