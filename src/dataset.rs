@@ -6,6 +6,7 @@ use anyhow::Result;
 use clap::{Args, Subcommand};
 use dynforge_proto::LABELS;
 use dynforge_trainer::data::dataset::stats;
+use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
 
 #[derive(Subcommand)]
@@ -21,6 +22,9 @@ pub struct StatsArgs {
     /// Window geometries to count, as LEN:STRIDE:SSR (default: the paper's grid around its best, 64:64:16).
     #[arg(long = "window", value_name = "LEN:STRIDE:SSR")]
     windows: Vec<String>,
+    /// Also list the input features of a time step (for the first readable shard's robot).
+    #[arg(long)]
+    features: bool,
 }
 
 fn parse_spec(s: &str) -> Result<WindowSpec> {
@@ -63,6 +67,22 @@ pub fn run(cmd: DatasetCommand) -> Result<()> {
         for (l, (lo, hi)) in LABELS.iter().zip(&s.label_ranges) {
             println!("  {:<12} {:>12.6} .. {:<12.6} {}", l.name, lo, hi, l.kind.unit());
         }
+    }
+    if args.features
+        && let Some(model) = &s.model
+    {
+        let jac = JacobianFeatures::new(model);
+        let joints: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
+        println!(
+            "features per time step: {} = q, qd, tau of {} joints + {} Jacobian entries",
+            3 * joints.len() + jac.len(),
+            joints.len(),
+            jac.len()
+        );
+        for kind in ["q", "qd", "tau"] {
+            println!("  {kind}: {}", joints.join(" "));
+        }
+        println!("  jacobian: {}", jac.entries.iter().map(|e| e.name.as_str()).collect::<Vec<_>>().join(" "));
     }
     for skipped in &s.skipped {
         eprintln!("skipped: {skipped}");

@@ -109,6 +109,8 @@ pub struct Stats {
     pub label_ranges: Vec<(f64, f64)>,
     /// Files that could not be read, with the reason.
     pub skipped: Vec<String>,
+    /// The robot of the first readable shard (its kinematics define the feature list).
+    pub model: Option<Model>,
 }
 
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
@@ -132,6 +134,9 @@ pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, DataError> {
             }
         };
         s.shards += 1;
+        if s.model.is_none() {
+            s.model = Some(p.model.clone());
+        }
         s.hours += p.trajectory.len() as f64 * GRID_DT / 3600.0;
         if let Some(r) = p.robot {
             robots.insert(r);
