@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use dynforge_coordinator::ledger::{self, Status};
+use dynforge_coordinator::ledger;
 use dynforge_coordinator::manifest::Manifest;
 use dynforge_coordinator::plan::{self, Partition};
 use dynforge_coordinator::run::{GenerateConfig, Observer, Progress, generate as run_generate};
@@ -82,9 +82,7 @@ impl Display {
     }
 
     fn summary(p: &Progress) -> String {
-        let mut reasons: Vec<_> = p.reasons.iter().collect();
-        reasons.sort();
-        let reasons = reasons.iter().map(|(r, n)| format!("{r} {n}")).collect::<Vec<_>>().join(", ");
+        let reasons = p.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect::<Vec<_>>().join(", ");
         format!(
             "done {} | discarded {}{} | failed {} | in flight {} | {:.1} jobs/s",
             p.done,
@@ -244,30 +242,23 @@ pub fn status(args: StatusArgs) -> Result<()> {
     let manifest = Manifest::load(&args.dir)?
         .with_context(|| format!("{}: no run manifest (not a dynforge generate directory)", args.dir.display()))?;
     let entries = ledger::read(&args.dir.join(LEDGER))?;
-    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count();
-    let (mut done, mut discarded, mut failed) = (0, 0, 0);
-    let mut reasons = std::collections::BTreeMap::<String, usize>::new();
-    for e in &entries {
-        match &e.status {
-            Status::Done { .. } => done += 1,
-            Status::Discarded { reason } => {
-                discarded += 1;
-                *reasons.entry(reason.clone()).or_default() += 1;
-            }
-            Status::Failed { .. } => failed += 1,
-        }
-    }
+    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
+    let p = Progress::from_ledger(total, &entries);
+    let pending = total - p.finished();
     if args.json {
         let v = serde_json::json!({
-            "live": false, "total": total, "done": done, "discarded": discarded, "failed": failed,
-            "reasons": reasons, "pending": total - (done + discarded + failed),
+            "live": false, "total": total, "done": p.done, "discarded": p.discarded, "failed": p.failed,
+            "reasons": p.reasons, "pending": pending,
         });
         println!("{v}");
     } else {
         println!(
-            "not running: {}/{total} jobs finished (done {done}, discarded {discarded} {reasons:?}, failed {failed}); {} pending",
-            done + discarded + failed,
-            total - (done + discarded + failed)
+            "not running: {}/{total} jobs finished (done {}, discarded {} {:?}, failed {}); {pending} pending",
+            p.finished(),
+            p.done,
+            p.discarded,
+            p.reasons,
+            p.failed
         );
     }
     Ok(())

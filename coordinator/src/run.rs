@@ -1,7 +1,7 @@
 //! `generate`: the coordinator's main loop. Plans the jobs not yet in the ledger, spawns the worker processes,
 //! dispatches jobs over iceoryx2, records every final report durably, and replaces dead or hung workers.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -46,7 +46,7 @@ pub struct Progress {
     pub done: u64,
     pub discarded: u64,
     pub failed: u64,
-    pub reasons: HashMap<String, u64>,
+    pub reasons: BTreeMap<String, u64>,
     pub in_flight: u32,
     pub workers_alive: u32,
     pub respawns: u32,
@@ -59,6 +59,28 @@ pub struct Progress {
 impl Progress {
     pub fn finished(&self) -> u64 {
         self.done + self.discarded + self.failed
+    }
+
+    /// Counts one finished job.
+    pub fn record(&mut self, status: &Status) {
+        match status {
+            Status::Done { .. } => self.done += 1,
+            Status::Discarded { reason } => {
+                self.discarded += 1;
+                *self.reasons.entry(reason.clone()).or_default() += 1;
+            }
+            Status::Failed { .. } => self.failed += 1,
+        }
+    }
+
+    /// Counts of a ledger's records (the last record of a job wins) for a run of `total` jobs.
+    pub fn from_ledger(total: u64, entries: &[Entry]) -> Progress {
+        let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+        let mut p = Progress { total, ..Progress::default() };
+        for e in latest.values() {
+            p.record(&e.status);
+        }
+        p
     }
 }
 
@@ -182,17 +204,7 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
 
     let finished: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
     let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
-    for e in finished.values() {
-        match &e.status {
-            Status::Done { .. } => progress.done += 1,
-            Status::Discarded { reason } => {
-                progress.discarded += 1;
-                *progress.reasons.entry(reason.clone()).or_default() += 1;
-            }
-            Status::Failed { .. } => progress.failed += 1,
-        }
-    }
+    let mut progress = Progress { slots: vec![None; cfg.workers], ..Progress::from_ledger(all.len() as u64, &entries) };
     progress.resumed = progress.finished();
     let mut pending: VecDeque<Job> =
         all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
@@ -251,14 +263,10 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
                 Status::Failed { message: format!("{why} ({} attempts)", *n) }
             }
         };
+        progress.record(&status);
         match &status {
-            Status::Done { .. } => progress.done += 1,
-            Status::Discarded { reason } => {
-                progress.discarded += 1;
-                *progress.reasons.entry(reason.clone()).or_default() += 1;
-            }
+            Status::Done { .. } | Status::Discarded { .. } => {}
             Status::Failed { message } => {
-                progress.failed += 1;
                 observer.message(&format!("robot {} trajectory {} failed: {message}", job.robot, job.trajectory));
                 // A worker killed as hung may still have finished its shard: a failed job keeps no shard.
                 let shard = cfg.dir.join(SHARDS).join(shard_name(&job, cfg.sim.engine.name()));
