@@ -124,12 +124,7 @@ pub fn load_or_build(
         move |e: std::io::Error| DataError::Content { file: shown.clone(), problem: e.to_string() }
     };
     let shards = dir.join("shards");
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&shards)
-        .map_err(io(&shards))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
-        .collect();
-    paths.sort();
+    let paths = super::follow::list_shards(&shards).map_err(io(&shards))?;
     let mut out =
         CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
     let mut skipped = Vec::new();

@@ -115,14 +115,10 @@ pub struct Stats {
 
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
 pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, DataError> {
-    let shards = if dir.join("shards").is_dir() { dir.join("shards") } else { dir.to_path_buf() };
-    let io = |e: std::io::Error| DataError::Content { file: shards.display().to_string(), problem: e.to_string() };
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&shards)
-        .map_err(io)?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
-        .collect();
-    paths.sort();
+    let paths = super::follow::list_shards(dir).map_err(|e| DataError::Content {
+        file: super::follow::shard_dir(dir).display().to_string(),
+        problem: e.to_string(),
+    })?;
     let mut s = Stats { label_ranges: vec![(f64::INFINITY, f64::NEG_INFINITY); NUM_LABELS], ..Stats::default() };
     let mut robots = std::collections::BTreeSet::new();
     for path in paths {

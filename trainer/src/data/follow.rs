@@ -4,6 +4,25 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+/// The shard directory of `dir`: a `generate` directory's `shards/`, or `dir` itself.
+pub fn shard_dir(dir: &Path) -> PathBuf {
+    if dir.join("shards").is_dir() { dir.join("shards") } else { dir.to_path_buf() }
+}
+
+/// The complete shards (`*.mcap`, not the writers' `.name.tmp` files) of `dir`'s shard directory, sorted by name.
+pub fn list_shards(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(shard_dir(dir))? {
+        let path = entry?.path();
+        let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
+        if !name.starts_with('.') && name.ends_with(".mcap") {
+            out.push(path);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
 /// Remembers which shards of a directory were already handed out.
 #[derive(Debug, Default)]
 pub struct ShardFollower {
@@ -14,30 +33,16 @@ pub struct ShardFollower {
 impl ShardFollower {
     /// Follows `dir` (a `generate` directory's `shards/`, or any folder of shards).
     pub fn new(dir: &Path) -> Self {
-        let dir = if dir.join("shards").is_dir() { dir.join("shards") } else { dir.to_path_buf() };
-        ShardFollower { dir, seen: BTreeSet::new() }
+        ShardFollower { dir: dir.to_path_buf(), seen: BTreeSet::new() }
     }
 
     /// Shards that appeared since the last call, sorted by name. A missing directory yields nothing yet.
     pub fn poll(&mut self) -> std::io::Result<Vec<PathBuf>> {
-        let listing = match std::fs::read_dir(&self.dir) {
-            Ok(l) => l,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
-            Err(e) => return Err(e),
-        };
-        let mut fresh = Vec::new();
-        for entry in listing {
-            let path = entry?.path();
-            let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-            if name.starts_with('.') || !name.ends_with(".mcap") {
-                continue;
-            }
-            if self.seen.insert(path.clone()) {
-                fresh.push(path);
-            }
+        match list_shards(&self.dir) {
+            Ok(all) => Ok(all.into_iter().filter(|p| self.seen.insert(p.clone())).collect()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+            Err(e) => Err(e),
         }
-        fresh.sort();
-        Ok(fresh)
     }
 }
 
