@@ -1,13 +1,11 @@
 //! End-to-end tests of `dynforge robot`, spawning the real binary.
 
-use std::process::Command;
+mod common;
+
+use common::dynforge;
 
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::urdf;
-
-fn dynforge(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_dynforge")).args(args).output().expect("dynforge runs")
-}
 
 #[test]
 fn robot_out_writes_a_urdf_that_loads_back_identically() {

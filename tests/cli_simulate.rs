@@ -1,10 +1,8 @@
 //! End-to-end tests of `dynforge simulate`, spawning the real binary.
 
-use std::process::Command;
+mod common;
 
-fn dynforge(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_dynforge")).args(args).output().expect("dynforge runs")
-}
+use common::dynforge;
 
 #[test]
 fn simulate_writes_a_readable_shard_and_reports_what_it_did() {

@@ -1,5 +1,8 @@
 //! End-to-end tests of `dynforge generate`: real coordinator and worker processes, real kills.
 
+mod common;
+
+use common::dynforge;
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -8,10 +11,6 @@ use std::time::{Duration, Instant};
 use dynforge_coordinator::ledger;
 
 const EXE: &str = env!("CARGO_BIN_EXE_dynforge");
-
-fn dynforge(args: &[&str]) -> Output {
-    Command::new(EXE).args(args).output().expect("dynforge runs")
-}
 
 fn generate_args<'a>(dir: &'a Path, robots: &'a str, trajectories: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
     let mut a = vec![

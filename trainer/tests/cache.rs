@@ -1,27 +1,25 @@
 //! The window cache: a hit returns identical tensors; a changed configuration or dataset misses; a damaged file is
 //! rebuilt.
 
-use dynforge_robot::generator::GeneratorConfig;
+mod common;
+
+use common::write_shard;
 use dynforge_trainer::data::cache::{cache_path, load_or_build};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::{Job, Runner};
-use dynforge_worker::simulate::SimConfig;
+use dynforge_worker::job::Job;
 
 #[test]
 fn cache_hits_misses_and_rebuilds() {
     let dir = tempfile::tempdir().unwrap();
     let shards = dir.path().join("shards");
     std::fs::create_dir_all(&shards).unwrap();
-    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
-    for trajectory in 0..2 {
-        runner.run(&Job { seed: 5, robot: 1, trajectory }, &shards).unwrap();
-    }
+    let (_, robot) = write_shard(&Job { seed: 5, robot: 1, trajectory: 0 }, &shards);
+    write_shard(&Job { seed: 5, robot: 1, trajectory: 1 }, &shards);
     // The cache key reads the run's manifest and ledger as bytes.
     std::fs::write(dir.path().join("manifest.toml"), "seed = 5\n").unwrap();
     std::fs::write(dir.path().join("ledger.tsv"), "b\na\n").unwrap();
-    let features =
-        JacobianFeatures::new(&runner.simulate(&Job { seed: 5, robot: 1, trajectory: 0 }).unwrap().robot.model);
+    let features = JacobianFeatures::new(&robot.model);
     let spec = WindowSpec::default();
 
     let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap();

@@ -1,24 +1,19 @@
 //! The data pipeline on real shards written by the worker.
 
+mod common;
+
+use common::write_shard;
 use dynforge_robot::Data;
-use dynforge_robot::generator::GeneratorConfig;
 use dynforge_robot::parameters::labels;
 use dynforge_trainer::data::dataset::{prepare, row_width, stats, windows};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::{Job, Outcome, Runner};
-use dynforge_worker::simulate::SimConfig;
+use dynforge_worker::job::Job;
 
 #[test]
 fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
     let dir = tempfile::tempdir().unwrap();
-    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
-    let job = Job { seed: 6, robot: 3, trajectory: 2 };
-    let path = match runner.run(&job, dir.path()).unwrap() {
-        Outcome::Written { path, .. } => path,
-        Outcome::Discarded(d) => panic!("{d}"),
-    };
-    let robot = runner.simulate(&job).unwrap().robot;
+    let (path, robot) = write_shard(&Job { seed: 6, robot: 3, trajectory: 2 }, dir.path());
     let p = prepare(&path, None).unwrap();
     assert_eq!(p.model, robot.model, "the robot comes from /robot_description");
     assert_eq!(p.labels.unwrap(), labels(&robot.model).unwrap());

@@ -2,26 +2,22 @@
 //! irregular timestamps, shuffled joint order and an extra joint, gives the same windows as our regular shard of
 //! the same motion. Needs the reference venv (see `dynforge_testkit::reference_python`).
 
+mod common;
+
+use common::write_shard;
 use dynforge_proto::shard::JOINT_STATE_DEFINITION;
-use dynforge_robot::generator::GeneratorConfig;
 use dynforge_robot::rng::Rng;
 use dynforge_trainer::data::dataset::{prepare, windows};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::{Job, Outcome, Runner};
-use dynforge_worker::simulate::SimConfig;
+use dynforge_worker::job::Job;
 use serde_json::json;
 
 #[test]
 fn an_irregular_shuffled_ros2_bag_gives_the_windows_of_the_regular_recording() {
     let Some(py) = dynforge_testkit::reference_python() else { return };
     let dir = tempfile::tempdir().unwrap();
-    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
-    let job = Job { seed: 8, robot: 2, trajectory: 1 };
-    let shard = match runner.run(&job, dir.path()).unwrap() {
-        Outcome::Written { path, .. } => path,
-        Outcome::Discarded(d) => panic!("{d}"),
-    };
+    let (shard, _) = write_shard(&Job { seed: 8, robot: 2, trajectory: 1 }, dir.path());
     let bag = dynforge_shard::read(&shard).unwrap();
     let urdf = bag.robot_description.clone().unwrap();
 

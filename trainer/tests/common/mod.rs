@@ -1,0 +1,18 @@
+//! Helpers shared by the trainer's integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
+use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::simulate::SimConfig;
+
+/// Simulates `job` with the default configuration and writes its shard into `dir`; the shard's path and robot.
+pub fn write_shard(job: &Job, dir: &Path) -> (PathBuf, GeneratedRobot) {
+    let mut runner = Runner::new(GeneratorConfig::default(), SimConfig::default());
+    let path = match runner.run(job, dir).unwrap() {
+        Outcome::Written { path, .. } => path,
+        Outcome::Discarded(d) => panic!("{d}"),
+    };
+    (path, generate(&GeneratorConfig::default(), job.seed, job.robot).unwrap())
+}
