@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::dynforge;
+use common::{dynforge, dynforge_with_env};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -234,10 +234,14 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
 
 #[test]
 fn a_hung_job_is_retried_then_recorded_as_failed_with_the_reason() {
-    // A 1 ms deadline no job meets: every attempt counts as a hung worker, which is killed and replaced; after the
-    // third attempt the job is recorded as failed, and the run still finishes.
+    // Workers stall 30 s before each job (fault injection), far past the 0.3 s deadline: every attempt counts as a
+    // hung worker, which is killed and replaced; after the third attempt the job is recorded as failed, and the run
+    // still finishes.
     let dir = tempfile::tempdir().unwrap();
-    let out = dynforge(&generate_args(dir.path(), "1", "1", &["--workers", "1", "--job-timeout", "0.001"]));
+    let out = dynforge_with_env(
+        &generate_args(dir.path(), "1", "1", &["--workers", "1", "--job-timeout", "0.3"]),
+        &[("DYNFORGE_FAULT_WORKER_STALL", "30")],
+    );
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let entries = ledger_entries(dir.path());
     assert_eq!(entries.len(), 1);

@@ -18,8 +18,13 @@ pub enum ServeError {
     Ipc(#[from] IpcError),
 }
 
+/// Fault injection for tests of the coordinator's hung-worker deadline: when set to a number of seconds, every
+/// worker sleeps that long before running each job, so "hung" does not depend on how fast the machine is.
+pub const STALL_ENV: &str = "DYNFORGE_FAULT_WORKER_STALL";
+
 /// Serves slot `slot` of the run in `dir`. Returns when the coordinator stops the worker or goes away.
 pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
+    let stall = std::env::var(STALL_ENV).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s > 0.0);
     let manifest = Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.display().to_string()))?;
     let run = RunId::for_dir(dir)?;
     let mut worker = Worker::new(&run, slot)?;
@@ -29,6 +34,9 @@ pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
     while let Some(request) = worker.next_job()? {
         let job = Job { seed: request.seed, robot: request.robot, trajectory: request.trajectory };
         let job_id = request.job_id;
+        if let Some(seconds) = stall {
+            std::thread::sleep(std::time::Duration::from_secs_f64(seconds));
+        }
         let report = match runner.run(&job, &shards) {
             Ok(Outcome::Written { samples, content_hash, .. }) => {
                 JobReport::Done { job_id, samples: samples as u64, content_hash }
