@@ -69,3 +69,68 @@ pub fn with_dynamic_parameters(model: &Model, pi: &[f64]) -> Result<Model, Model
         (0..n).map(|j| Friction { coulomb: pi[NI * n + NF * j], viscous: pi[NI * n + NF * j + 1] }).collect();
     model.with_dynamics(&inertials, &friction)
 }
+
+/// Smallest mass [kg] and principal moment [kg m^2] an estimate is projected up to.
+const MIN_MASS: f64 = 1e-3;
+const MIN_MOMENT: f64 = 1e-7;
+
+/// A copy of the 6-joint `model` carrying the 38 labels `y` (e.g. a network's estimate). What the labels do not
+/// cover is kept from `model`: the COM's x and y, products of inertia, and link 1's mass, COM and Ixx, Iyy (which
+/// never enter its dynamics; they grow if link 1's Izz needs it). Values outside physics are projected back (friction >= 0, mass and moments
+/// positive, each moment at most the sum of the other two); every projection is described in the returned list.
+pub fn with_labels(model: &Model, y: &[f64; NUM_LABELS]) -> Result<(Model, Vec<String>), ModelError> {
+    labels(model)?; // the 6-joint check, with its error
+    let mut notes = Vec::new();
+    let mut floor = |name: &str, v: f64, min: f64, unit: &str| {
+        if v < min || !v.is_finite() {
+            notes.push(format!("{name} = {v:.4e} {unit} raised to {min:e}"));
+            min
+        } else {
+            v
+        }
+    };
+    let n = model.dof();
+    let mut mass: Vec<f64> = (0..n).map(|i| model.inertia(i).mass).collect();
+    let mut com: Vec<_> = (0..n).map(|i| model.inertia(i).com()).collect();
+    let mut i_com: Vec<_> = (0..n).map(|i| model.inertia(i).i_com()).collect();
+    let mut friction: Vec<Friction> = model.joints().iter().map(|j| j.friction).collect();
+    for (l, &v) in LABELS.iter().zip(y.iter()) {
+        let link = l.index.wrapping_sub(1);
+        match l.kind {
+            LabelKind::Coulomb => friction[l.index].coulomb = floor(l.name, v, 0.0, l.kind.unit()),
+            LabelKind::Viscous => friction[l.index].viscous = floor(l.name, v, 0.0, l.kind.unit()),
+            LabelKind::Mass => mass[link] = floor(l.name, v, MIN_MASS, l.kind.unit()),
+            LabelKind::Com => com[link].z = v,
+            LabelKind::Ixx => i_com[link][(0, 0)] = floor(l.name, v, MIN_MOMENT, l.kind.unit()),
+            LabelKind::Iyy => i_com[link][(1, 1)] = floor(l.name, v, MIN_MOMENT, l.kind.unit()),
+            LabelKind::Izz => i_com[link][(2, 2)] = floor(l.name, v, MIN_MOMENT, l.kind.unit()),
+        }
+    }
+    // Link 1 carries only Izz: its unlabelled Ixx, Iyy (no effect on the dynamics) grow to keep it physical.
+    let i1 = &mut i_com[0];
+    let (sum, izz) = (i1[(0, 0)] + i1[(1, 1)], i1[(2, 2)]);
+    if izz > sum {
+        let scale = izz / sum;
+        i1[(0, 0)] *= scale;
+        i1[(1, 1)] *= scale;
+    }
+    for (link, i) in i_com.iter_mut().enumerate() {
+        for a in 0..3 {
+            let others = i[((a + 1) % 3, (a + 1) % 3)] + i[((a + 2) % 3, (a + 2) % 3)];
+            if i[(a, a)] > others {
+                notes.push(format!(
+                    "{}_l{} = {:.4e} kg m^2 lowered to {others:.4e}, the sum of the other two moments of link {} \
+                     (triangle inequality)",
+                    ["ixx", "iyy", "izz"][a],
+                    link + 1,
+                    i[(a, a)],
+                    link + 1
+                ));
+                i[(a, a)] = others;
+            }
+        }
+    }
+    let inertials: Vec<Inertial> =
+        (0..n).map(|i| Inertial::from_spatial(&Inertia::from_com(mass[i], com[i], i_com[i]))).collect();
+    Ok((model.with_dynamics(&inertials, &friction)?, notes))
+}

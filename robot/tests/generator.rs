@@ -81,3 +81,48 @@ fn config_from_toml_overrides_defaults_and_rejects_bad_ranges() {
     let e = GeneratorConfig::from_toml("densty = 3.0").unwrap_err();
     assert!(e.to_string().contains("densty"), "{e}");
 }
+
+#[test]
+fn labels_carried_onto_another_robot_read_back_exactly_and_reproduce_its_torques() {
+    use dynforge_robot::parameters::with_labels;
+    use dynforge_robot::{Data, rnea};
+    let cfg = GeneratorConfig::default();
+    for id in 0..20 {
+        let (a, b) = (generate(&cfg, 3, id).unwrap().model, generate(&cfg, 3, id + 100).unwrap().model);
+        let y = labels(&b).unwrap();
+        let (moved, notes) = with_labels(&a, &y).unwrap();
+        assert!(notes.is_empty(), "{notes:?}");
+        let back = labels(&moved).unwrap();
+        for k in 0..y.len() {
+            assert!((back[k] - y[k]).abs() <= 1e-12 * y[k].abs().max(1e-6), "robot {id} label {k}: {} vs {}", back[k], y[k]);
+        }
+        // Generated links have their COM on the link axis and no products of inertia, and link 1's unlabelled
+        // parameters do not enter its dynamics: `b`'s torques follow from the labels alone (to rounding).
+        let (q, qd, qdd) = ([0.3, -0.7, 1.1, 0.4, -0.2, 0.9], [0.5, -0.4, 0.3, 1.0, -0.8, 0.6], [1.0, 2.0, -1.0, 0.5, 0.3, -2.0]);
+        let (mut da, mut db) = (Data::new(&moved), Data::new(&b));
+        let ta = rnea(&moved, &mut da, &q, &qd, &qdd).to_vec();
+        let tb = rnea(&b, &mut db, &q, &qd, &qdd);
+        for j in 0..6 {
+            assert!((ta[j] - tb[j]).abs() < 1e-9 * (1.0 + tb[j].abs()), "robot {id} joint {j}: {} vs {}", ta[j], tb[j]);
+        }
+    }
+}
+
+#[test]
+fn unphysical_label_estimates_are_projected_and_each_projection_is_named() {
+    use dynforge_proto::LABELS;
+    use dynforge_robot::parameters::with_labels;
+    let model = generate(&GeneratorConfig::default(), 3, 0).unwrap().model;
+    let mut y = labels(&model).unwrap();
+    let at = |name: &str| LABELS.iter().position(|l| l.name == name).unwrap();
+    y[at("mass_l3")] = -0.5;
+    y[at("viscous_j2")] = -0.1;
+    y[at("ixx_l4")] = 10.0; // far above Iyy + Izz
+    let (moved, notes) = with_labels(&model, &y).unwrap();
+    assert_eq!(notes.len(), 3, "{notes:?}");
+    assert!(notes.iter().any(|n| n.starts_with("mass_l3")) && notes.iter().any(|n| n.starts_with("viscous_j2")));
+    assert!(notes.iter().any(|n| n.starts_with("ixx_l4") && n.contains("triangle")));
+    let back = labels(&moved).unwrap();
+    assert!(back[at("mass_l3")] > 0.0 && back[at("viscous_j2")] == 0.0);
+    assert!((back[at("ixx_l4")] - (back[at("iyy_l4")] + back[at("izz_l4")])).abs() < 1e-12);
+}

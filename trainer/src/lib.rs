@@ -1,4 +1,11 @@
-//! dynforge's trainer. `data` turns shards and ROS 2 bags into model-ready windows through the paper's
-//! preprocessing stages, each a named, separately tested step.
+//! dynforge's trainer, split like burn's examples: `data` turns shards and ROS 2 bags into model-ready windows
+//! through the paper's preprocessing stages; `model` is the transformer estimator; `training` its optimisation loop;
+//! `checkpoint` the self-contained saved model; `evaluation` the paper's scores and tables; `inference` estimates
+//! a recording's parameters.
 
+pub mod checkpoint;
 pub mod data;
+pub mod evaluation;
+pub mod inference;
+pub mod model;
+pub mod training;

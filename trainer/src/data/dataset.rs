@@ -70,6 +70,25 @@ pub fn prepare(path: &Path, model: Option<&Model>) -> Result<Prepared, DataError
     Ok(Prepared { path: path.to_path_buf(), model, trajectory, labels, robot })
 }
 
+/// The robot of a dataset directory: that of its first readable shard (every shard of a dataset shares the
+/// kinematics, which is all the features depend on).
+pub fn dataset_robot(dir: &Path) -> Result<Model, DataError> {
+    let shards = super::follow::shard_dir(dir);
+    let paths = super::follow::list_shards(&shards)
+        .map_err(|e| DataError::Content { file: shards.display().to_string(), problem: e.to_string() })?;
+    let mut last = None;
+    for p in &paths {
+        match prepare(p, None) {
+            Ok(prep) => return Ok(prep.model),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| DataError::Content {
+        file: shards.display().to_string(),
+        problem: "no shards (generate a dataset with `dynforge generate` first)".into(),
+    }))
+}
+
 /// Width of a window row: q, qd, tau and the Jacobian features.
 pub fn row_width(model: &Model, features: &JacobianFeatures) -> usize {
     3 * model.dof() + features.len()

@@ -1,0 +1,95 @@
+//! End to end through the real binary: generate a small dataset, train a small model, evaluate it, estimate a
+//! recording's parameters into a URDF the robot crate loads, and refuse bad inputs clearly.
+
+mod common;
+
+use common::dynforge;
+use std::path::Path;
+
+fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn ok(o: std::process::Output) -> String {
+    assert!(o.status.success(), "stdout:\n{}\nstderr:\n{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+const SMALL: [&str; 14] =
+    ["--preset", "fast", "--layers", "1", "--heads", "2", "--dim", "16", "--epochs", "2", "--batch", "16", "--validation", "0.5"];
+
+fn first_shard(data: &Path) -> std::path::PathBuf {
+    let mut v: Vec<_> = std::fs::read_dir(data.join("shards")).unwrap().map(|e| e.unwrap().path()).collect();
+    v.sort();
+    v.remove(0)
+}
+
+#[test]
+fn train_evaluate_and_estimate_a_small_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let run = dir.path().join("run");
+    let d = data.to_str().unwrap();
+    ok(dynforge(&["generate", "--out", d, "--robots", "4", "--trajectories", "2", "--workers", "2", "--seed", "5"]));
+    let mut args = vec!["train", d, "--out", run.to_str().unwrap()];
+    args.extend(SMALL);
+    ok(dynforge(&args));
+    for f in ["checkpoint.json", "model.safetensors", "metrics.csv", "metrics.json", "train/state.json"] {
+        assert!(run.join(f).is_file(), "{f} missing");
+    }
+    // A second `train` into the same checkpoint is refused unless it resumes.
+    let again = dynforge(&args);
+    assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
+
+    let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2"]));
+    for needle in ["Friction per joint", "Mass and centre of mass per link", "Inertia per link", "Overall", "Torque check"] {
+        assert!(out.contains(needle), "{needle} missing from\n{out}");
+    }
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["windows"]["targets"].as_array().unwrap().len(), 38);
+    // The true parameters predict the recorded torques far better than any small-data estimate can be expected
+    // to be wrong: the check discriminates.
+    let t = &report["torque"];
+    assert!(t["truth_overall"].as_f64().unwrap() < t["mean_overall"].as_f64().unwrap(), "{t}");
+
+    let shard = first_shard(&data);
+    let urdf = dir.path().join("estimated.urdf");
+    let out = ok(dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), shard.to_str().unwrap(), "--out", urdf.to_str().unwrap(), "--json"]));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["parameters"].as_object().unwrap().len(), 38);
+    let model = dynforge_robot::urdf::load(&urdf).unwrap();
+    let y = dynforge_robot::parameters::labels(&model).unwrap();
+    for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
+        let est = v["parameters"][l.name]["value"].as_f64().unwrap();
+        let projected = v["projections"].as_array().unwrap().iter().any(|p| p.as_str().unwrap().contains(l.name));
+        assert!(projected || (y[k] - est).abs() <= 1e-9 * est.abs().max(1e-9), "{}: URDF {} vs estimate {est}", l.name, y[k]);
+    }
+
+    // Bad inputs: a checkpoint for another feature set, a bag without /joint_states, joints of other names.
+    let mut ck: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
+    ck["features"].as_array_mut().unwrap()[0] = "J_other".into();
+    let other = dir.path().join("other");
+    std::fs::create_dir(&other).unwrap();
+    std::fs::write(other.join("checkpoint.json"), serde_json::to_vec(&ck).unwrap()).unwrap();
+    std::fs::copy(run.join("model.safetensors"), other.join("model.safetensors")).unwrap();
+    let o = dynforge(&["estimate", "--checkpoint", other.to_str().unwrap(), shard.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("Jacobian features"), "{}", stderr(&o));
+
+    let empty = dir.path().join("empty.mcap");
+    let robot = std::fs::read_to_string(&urdf).unwrap();
+    let metadata = dynforge_shard::Metadata::new();
+    dynforge_shard::write(&empty, &dynforge_shard::ShardContent { urdf: &robot, joint_states: &[], metadata: &metadata })
+        .unwrap();
+    let o = dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), empty.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("empty.mcap") && stderr(&o).contains("/joint_states"), "{}", stderr(&o));
+
+    let renamed = dir.path().join("renamed.urdf");
+    std::fs::write(&renamed, robot.replace("\"joint_1\"", "\"shoulder\"")).unwrap();
+    let o = dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), shard.to_str().unwrap(), "--urdf", renamed.to_str().unwrap()]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("shoulder") || stderr(&o).contains("joint"), "{}", stderr(&o));
+
+    // A checkpoint directory that is not one.
+    let o = dynforge(&["estimate", "--checkpoint", dir.path().to_str().unwrap(), shard.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("not a checkpoint"), "{}", stderr(&o));
+}

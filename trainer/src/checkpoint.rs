@@ -1,0 +1,200 @@
+//! A self-contained checkpoint directory: everything inference needs to turn a recording into parameters.
+//!
+//! ```text
+//! checkpoint.json      architecture, window geometry, joint names, feature list, standardisation statistics
+//! model.safetensors    weights of the best validation epoch (the export format; names are module paths)
+//! train/               resume state: last weights (burnpack, keeps parameter ids), optimizer state, progress
+//! ```
+//!
+//! Every file is written atomically (temporary file, fsync, rename), so a checkpoint interrupted mid-write is the
+//! previous one, whole.
+
+use std::path::{Path, PathBuf};
+
+use burn::module::Module;
+use burn::store::{ModuleSnapshot, SafetensorsStore};
+use burn::tensor::Device;
+use dynforge_proto::{LABELS, NUM_LABELS};
+use serde::{Deserialize, Serialize};
+
+use crate::data::features::JacobianFeatures;
+use crate::data::normalize::Standardizer;
+use crate::data::window::WindowSpec;
+use crate::model::{Estimator, ModelConfig};
+
+/// Version of the checkpoint layout; readers refuse others.
+pub const FORMAT: &str = "dynforge-checkpoint/1";
+pub const CONFIG_FILE: &str = "checkpoint.json";
+pub const WEIGHTS_FILE: &str = "model.safetensors";
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("{file}: {problem}")]
+    File { file: String, problem: String },
+    #[error("{0}")]
+    Model(#[from] crate::model::ConfigError),
+    #[error("checkpoint {checkpoint} does not fit this recording: {problem}")]
+    Mismatch { checkpoint: String, problem: String },
+}
+
+fn file_error(path: &Path, problem: impl ToString) -> CheckpointError {
+    CheckpointError::File { file: path.display().to_string(), problem: problem.to_string() }
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
+    use std::io::Write;
+    let tmp = path.with_extension("tmp");
+    let result = (|| {
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    result.map_err(|e| file_error(path, e))
+}
+
+/// What a checkpoint knows besides its weights.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    pub format: String,
+    pub model: ModelConfig,
+    pub window: [usize; 3],
+    /// Joint names of the robots trained on, in model order (a recording's joints are matched by these names).
+    pub joints: Vec<String>,
+    /// Jacobian feature names, in column order after q, qd, tau.
+    pub features: Vec<String>,
+    /// Kept input columns and their standardisation.
+    pub columns: Vec<usize>,
+    pub mean: Vec<f64>,
+    pub std: Vec<f64>,
+    /// Label names and their standardisation.
+    pub labels: Vec<String>,
+    pub label_mean: Vec<f64>,
+    pub label_std: Vec<f64>,
+    /// The dataset trained on and its robot-level split (so evaluation sees the same validation robots).
+    pub dataset: String,
+    pub split_seed: u64,
+    pub validation_fraction: f64,
+    /// Epoch the weights come from, and its validation loss (none before the first epoch ends).
+    pub epoch: usize,
+    pub validation_loss: Option<f64>,
+}
+
+impl Checkpoint {
+    pub fn new(
+        model: ModelConfig,
+        spec: &WindowSpec,
+        joints: Vec<String>,
+        features: &JacobianFeatures,
+        s: &Standardizer,
+    ) -> Self {
+        Checkpoint {
+            format: FORMAT.into(),
+            model,
+            window: [spec.len, spec.stride, spec.ssr],
+            joints,
+            features: features.entries.iter().map(|e| e.name.clone()).collect(),
+            columns: s.columns.clone(),
+            mean: s.mean.clone(),
+            std: s.std.clone(),
+            labels: LABELS.iter().map(|l| l.name.to_string()).collect(),
+            label_mean: s.label_mean.to_vec(),
+            label_std: s.label_std.to_vec(),
+            dataset: String::new(),
+            split_seed: 0,
+            validation_fraction: 0.0,
+            epoch: 0,
+            validation_loss: None,
+        }
+    }
+
+    pub fn window_spec(&self) -> WindowSpec {
+        WindowSpec { len: self.window[0], stride: self.window[1], ssr: self.window[2] }
+    }
+
+    pub fn standardizer(&self) -> Standardizer {
+        Standardizer {
+            columns: self.columns.clone(),
+            mean: self.mean.clone(),
+            std: self.std.clone(),
+            label_mean: self.label_mean.clone().try_into().expect("checked at load"),
+            label_std: self.label_std.clone().try_into().expect("checked at load"),
+        }
+    }
+
+    /// Refuses a recording whose robot or features differ from the training ones, naming the first difference.
+    pub fn check_fits(&self, dir: &Path, joints: &[String], features: &JacobianFeatures) -> Result<(), CheckpointError> {
+        let mismatch = |problem: String| CheckpointError::Mismatch { checkpoint: dir.display().to_string(), problem };
+        if joints != self.joints.as_slice() {
+            return Err(mismatch(format!("joints are {joints:?}, the model was trained on {:?}", self.joints)));
+        }
+        let names: Vec<&str> = features.entries.iter().map(|e| e.name.as_str()).collect();
+        if names != self.features.iter().map(String::as_str).collect::<Vec<_>>() {
+            let first = names.iter().zip(&self.features).position(|(a, b)| a != b).unwrap_or(names.len().min(self.features.len()));
+            return Err(mismatch(format!(
+                "the robot's kinematics give {} Jacobian features, the model was trained on {} (first difference at feature {first})",
+                names.len(),
+                self.features.len()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Writes `checkpoint.json` into `dir`.
+    pub fn describe(&self, dir: &Path) -> Result<(), CheckpointError> {
+        let json = serde_json::to_vec_pretty(self).map_err(|e| file_error(&dir.join(CONFIG_FILE), e))?;
+        write_atomic(&dir.join(CONFIG_FILE), &json)
+    }
+
+    /// Writes the weights, then `checkpoint.json`, into `dir`.
+    pub fn save(&self, dir: &Path, model: &Estimator) -> Result<(), CheckpointError> {
+        let mut store = SafetensorsStore::from_bytes(None);
+        model.save_into(&mut store).map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
+        let bytes = store.get_bytes().map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
+        write_atomic(&dir.join(WEIGHTS_FILE), &bytes)?;
+        self.describe(dir)
+    }
+
+    /// Reads the description of the checkpoint in `dir`.
+    pub fn read(dir: &Path) -> Result<Checkpoint, CheckpointError> {
+        let path = dir.join(CONFIG_FILE);
+        let text = std::fs::read(&path).map_err(|e| {
+            file_error(&path, if e.kind() == std::io::ErrorKind::NotFound { "not a checkpoint (no checkpoint.json)".into() } else { e.to_string() })
+        })?;
+        let c: Checkpoint = serde_json::from_slice(&text).map_err(|e| file_error(&path, e))?;
+        if c.format != FORMAT {
+            return Err(file_error(&path, format!("format {:?}, this dynforge reads {FORMAT:?}", c.format)));
+        }
+        let names: Vec<&str> = LABELS.iter().map(|l| l.name).collect();
+        if c.labels != names || c.label_mean.len() != NUM_LABELS || c.label_std.len() != NUM_LABELS {
+            return Err(file_error(&path, "its labels are not this dynforge's 38 labels"));
+        }
+        let consistent = c.columns.len() == c.mean.len()
+            && c.columns.len() == c.std.len()
+            && c.model.inputs == c.columns.len()
+            && c.model.seq_len == c.window[0];
+        if !consistent {
+            return Err(file_error(&path, "inconsistent columns, statistics and model inputs"));
+        }
+        c.model.check()?;
+        Ok(c)
+    }
+
+    /// Reads a checkpoint and its weights.
+    pub fn load(dir: &Path, device: &Device) -> Result<(Checkpoint, Estimator), CheckpointError> {
+        let c = Checkpoint::read(dir)?;
+        let path: PathBuf = dir.join(WEIGHTS_FILE);
+        let bytes = std::fs::read(&path).map_err(|e| file_error(&path, e))?;
+        let mut model = c.model.init(device)?;
+        let mut store = SafetensorsStore::from_bytes(Some(bytes));
+        let result = model.load_from(&mut store).map_err(|e| file_error(&path, e))?;
+        if !result.missing.is_empty() || !result.errors.is_empty() {
+            return Err(file_error(&path, format!("weights do not fit the architecture: {result}")));
+        }
+        Ok((c, model.valid()))
+    }
+}

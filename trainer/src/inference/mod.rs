@@ -1,0 +1,102 @@
+//! Estimating the parameters of one recording (a dataset shard or a user's ROS 2 bag) with a checkpoint: every
+//! window of the recording is predicted and the predictions are averaged, and their spread reported.
+
+use std::path::Path;
+
+use burn::tensor::Device;
+use dynforge_proto::NUM_LABELS;
+use dynforge_robot::Model;
+
+use crate::checkpoint::{Checkpoint, CheckpointError};
+use crate::data::cache::CachedWindows;
+use crate::data::dataset::{DataError, Prepared, prepare, row_width, windows};
+use crate::data::features::JacobianFeatures;
+use crate::model::Estimator;
+use crate::training::predict;
+
+#[derive(Debug, thiserror::Error)]
+pub enum InferenceError {
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error("{file}: {problem}")]
+    Recording { file: String, problem: String },
+}
+
+/// A recording's estimate.
+#[derive(Debug, Clone)]
+pub struct Estimate {
+    /// Mean over windows of the predicted labels [SI].
+    pub labels: [f64; NUM_LABELS],
+    /// Standard deviation over windows [SI] (0 with one window).
+    pub spread: [f64; NUM_LABELS],
+    pub windows: usize,
+}
+
+/// A loaded checkpoint, ready to estimate recordings.
+pub struct Predictor {
+    pub checkpoint: Checkpoint,
+    model: Estimator,
+    device: Device,
+}
+
+impl Predictor {
+    pub fn load(dir: &Path) -> Result<Self, InferenceError> {
+        let device = Device::default();
+        let (checkpoint, model) = Checkpoint::load(dir, &device)?;
+        Ok(Predictor { checkpoint, model, device })
+    }
+
+    /// The network (evaluation mode).
+    pub fn model(&self) -> &Estimator {
+        &self.model
+    }
+
+    /// Estimate of a prepared recording, checked against the checkpoint's joints and features.
+    pub fn estimate_prepared(&self, dir: &Path, p: &Prepared) -> Result<Estimate, InferenceError> {
+        let features = JacobianFeatures::new(&p.model);
+        let joints: Vec<String> = p.model.joints().iter().map(|j| j.name.clone()).collect();
+        self.checkpoint.check_fits(dir, &joints, &features)?;
+        let spec = self.checkpoint.window_spec();
+        let (count, data) = windows(p, &spec, &features);
+        if count == 0 {
+            let seconds = p.trajectory.len() as f64 * crate::data::dataset::GRID_DT;
+            return Err(InferenceError::Recording {
+                file: p.path.display().to_string(),
+                problem: format!(
+                    "{seconds:.3} s of motion is shorter than one window ({:.3} s = {} samples x {} ms)",
+                    spec.span(crate::data::dataset::GRID_DT),
+                    spec.len,
+                    spec.stride
+                ),
+            });
+        }
+        let w = CachedWindows {
+            spec,
+            width: row_width(&p.model, &features),
+            data,
+            labels: vec![[0.0; NUM_LABELS]; count],
+            robots: vec![0; count],
+            hit: false,
+        };
+        let s = self.checkpoint.standardizer();
+        let x: Vec<f32> = (0..count).flat_map(|i| s.inputs(&w, i)).collect();
+        let per_window: Vec<[f64; NUM_LABELS]> =
+            predict(&self.model, &x, count, spec.len, s.columns.len(), &self.device).iter().map(|t| s.labels(t)).collect();
+        let n = count as f64;
+        let labels: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
+        let spread = std::array::from_fn(|k| {
+            (per_window.iter().map(|y| (y[k] - labels[k]).powi(2)).sum::<f64>() / n).sqrt()
+        });
+        Ok(Estimate { labels, spread, windows: count })
+    }
+
+    /// Reads and estimates the recording `path`; its robot comes from its `/robot_description` unless `urdf` is
+    /// given.
+    pub fn estimate(&self, dir: &Path, path: &Path, urdf: Option<&Model>) -> Result<(Prepared, Estimate), InferenceError> {
+        let p = prepare(path, urdf)?;
+        let e = self.estimate_prepared(dir, &p)?;
+        Ok((p, e))
+    }
+}
