@@ -4,6 +4,7 @@ mod dataset;
 mod generate;
 mod robot;
 mod simulate;
+mod sweep;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -45,6 +46,8 @@ enum Command {
     Estimate(train::EstimateArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(train::PipelineArgs),
+    /// Run the paper's dataset and architecture grids at a chosen scale and write both tables.
+    Sweep(sweep::SweepArgs),
     /// A worker process (started by `generate`).
     #[command(hide = true)]
     Worker(generate::WorkerArgs),
@@ -69,6 +72,7 @@ fn main() -> std::process::ExitCode {
         Command::Evaluate(args) => train::evaluate_command(args),
         Command::Estimate(args) => train::estimate_command(args),
         Command::Pipeline(args) => train::pipeline_command(args),
+        Command::Sweep(args) => sweep::run(args),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

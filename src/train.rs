@@ -49,19 +49,19 @@ pub enum PresetArg {
 pub struct ModelArgs {
     /// Architecture preset; the options below override its parts [default: paper; pipeline: fast].
     #[arg(long, value_enum)]
-    preset: Option<PresetArg>,
+    pub(crate) preset: Option<PresetArg>,
     #[arg(long)]
-    layers: Option<usize>,
+    pub(crate) layers: Option<usize>,
     #[arg(long)]
-    heads: Option<usize>,
+    pub(crate) heads: Option<usize>,
     /// Embedding size.
     #[arg(long)]
-    dim: Option<usize>,
+    pub(crate) dim: Option<usize>,
     /// Time steps per token.
     #[arg(long)]
-    patch: Option<usize>,
+    pub(crate) patch: Option<usize>,
     #[arg(long)]
-    dropout: Option<f64>,
+    pub(crate) dropout: Option<f64>,
 }
 
 impl ModelArgs {
@@ -88,13 +88,13 @@ impl ModelArgs {
 pub struct WindowArgs {
     /// Sequence length L (time steps per window).
     #[arg(long = "len", default_value_t = 64)]
-    len: usize,
+    pub(crate) len: usize,
     /// Stride between the time steps of a window, in 1 kHz samples (the paper's "sampling rate").
     #[arg(long, default_value_t = 64)]
-    stride: usize,
+    pub(crate) stride: usize,
     /// Secondary sampling rate: window offsets 0, SSR, 2 SSR, ... below the stride.
     #[arg(long, default_value_t = 16)]
-    ssr: usize,
+    pub(crate) ssr: usize,
 }
 
 impl WindowArgs {
@@ -110,21 +110,21 @@ impl WindowArgs {
 pub struct OptimArgs {
     /// Maximum epochs [default: 30; pipeline: 12].
     #[arg(long)]
-    epochs: Option<usize>,
+    pub(crate) epochs: Option<usize>,
     #[arg(long, default_value_t = 64)]
-    batch: usize,
+    pub(crate) batch: usize,
     /// Peak learning rate (AdamW; linear warmup over the first 5 % of steps, then cosine decay).
     #[arg(long, default_value_t = 5e-4)]
-    lr: f64,
+    pub(crate) lr: f64,
     /// Epochs without a better validation loss before stopping early.
     #[arg(long, default_value_t = 6)]
-    patience: usize,
+    pub(crate) patience: usize,
     /// Seed of the robot-level split, the initial weights, the batch order and dropout.
     #[arg(long, default_value_t = 0)]
-    seed: u64,
+    pub(crate) seed: u64,
     /// Share of the robots held out for validation.
     #[arg(long, default_value_t = 0.2)]
-    validation: f64,
+    pub(crate) validation: f64,
 }
 
 #[derive(Args)]
@@ -201,7 +201,7 @@ pub struct PipelineArgs {
     optim: OptimArgs,
 }
 
-fn bar(len: u64, template: &str) -> ProgressBar {
+pub(crate) fn bar(len: u64, template: &str) -> ProgressBar {
     if !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
@@ -278,16 +278,16 @@ impl TrainObserver for Bars {
     }
 }
 
-struct TrainJob<'a> {
+pub(crate) struct TrainJob<'a> {
     /// Preset and epochs when not given.
-    defaults: (Preset, usize),
-    data: &'a Path,
-    out: &'a Path,
-    resume: bool,
-    follow: bool,
-    model: &'a ModelArgs,
-    window: &'a WindowArgs,
-    optim: &'a OptimArgs,
+    pub(crate) defaults: (Preset, usize),
+    pub(crate) data: &'a Path,
+    pub(crate) out: &'a Path,
+    pub(crate) resume: bool,
+    pub(crate) follow: bool,
+    pub(crate) model: &'a ModelArgs,
+    pub(crate) window: &'a WindowArgs,
+    pub(crate) optim: &'a OptimArgs,
 }
 
 /// Waits until the dataset has a readable shard and returns its robot (for --follow, started with the generation).
@@ -308,7 +308,7 @@ fn wait_for_robot(data: &Path) -> Result<dynforge_robot::Model> {
     }
 }
 
-fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindows)> {
+pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindows)> {
     let o = job.optim;
     if !(o.validation > 0.0 && o.validation < 1.0) {
         bail!("--validation {} must be between 0 and 1", o.validation);

@@ -1,0 +1,186 @@
+//! `dynforge sweep`: the paper's two ablations — the dataset grid (sequence length x stride x SSR, fixed
+//! architecture) and the architecture grid (layers x heads x embedding, fixed dataset configuration) — trained and
+//! scored at a chosen scale, written as the paper's two tables with its values beside ours.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use dynforge_trainer::checkpoint::Checkpoint;
+use dynforge_trainer::evaluation::evaluate_checkpoint;
+use dynforge_trainer::model::Preset;
+use serde::Serialize;
+
+use crate::train::{ModelArgs, OptimArgs, TrainJob, WindowArgs, run_training};
+
+/// The paper's dataset grid: (sequence length, stride, SSR, its validation R2).
+const DATASET_GRID: [(usize, usize, usize, f64); 16] = [
+    (16, 32, 8, 0.7880),
+    (16, 64, 16, 0.8090),
+    (16, 128, 32, 0.8333),
+    (16, 256, 32, 0.8446),
+    (32, 32, 8, 0.8134),
+    (32, 64, 16, 0.8428),
+    (32, 128, 128, 0.8383),
+    (64, 32, 8, 0.8328),
+    (64, 32, 16, 0.8331),
+    (64, 64, 16, 0.8633),
+    (64, 64, 32, 0.8592),
+    (64, 64, 64, 0.8571),
+    (128, 16, 8, 0.8181),
+    (128, 32, 8, 0.8451),
+    (128, 32, 16, 0.8459),
+    (128, 64, 16, 0.8479),
+];
+
+/// The paper's architecture grid: (layers, heads, embedding, its validation R2 and RMSE).
+const ARCHITECTURE_GRID: [(usize, usize, usize, f64, f64); 4] =
+    [(2, 16, 256, 0.8460, 0.1185), (4, 16, 128, 0.8555, 0.1148), (4, 32, 128, 0.8633, 0.1116), (8, 32, 128, 0.8410, 0.1200)];
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+pub enum Grid {
+    Dataset,
+    Architecture,
+    Both,
+}
+
+#[derive(Args)]
+pub struct SweepArgs {
+    /// A `dynforge generate` output directory.
+    data: PathBuf,
+    /// Directory for one checkpoint per configuration and the tables (sweep.md, sweep.json).
+    #[arg(long)]
+    out: PathBuf,
+    /// Which grid to run.
+    #[arg(long, value_enum, default_value = "both")]
+    grid: Grid,
+    /// Architecture of the dataset grid and patch of the architecture grid's models.
+    #[command(flatten)]
+    model: ModelArgs,
+    #[command(flatten)]
+    optim: OptimArgs,
+}
+
+#[derive(Serialize)]
+struct Row {
+    name: String,
+    len: usize,
+    stride: usize,
+    ssr: usize,
+    layers: usize,
+    heads: usize,
+    dim: usize,
+    r2: f64,
+    rmse: f64,
+    train_seconds: f64,
+    windows: usize,
+    paper_r2: f64,
+    paper_rmse: Option<f64>,
+}
+
+fn run_one(args: &SweepArgs, name: &str, window: WindowArgs, model: ModelArgs, paper: (f64, Option<f64>)) -> Result<Row> {
+    let out = args.out.join(name);
+    eprintln!("== {name}");
+    let started = Instant::now();
+    let (_, windows) = run_training(&TrainJob {
+        defaults: (Preset::Paper, 5),
+        data: &args.data,
+        out: &out,
+        resume: dynforge_trainer::training::resumable(&out),
+        follow: false,
+        model: &model,
+        window: &window,
+        optim: &args.optim,
+    })?;
+    let train_seconds = started.elapsed().as_secs_f64();
+    let report = evaluate_checkpoint(&out, &windows, &args.data, 0, |_, _, _| {})?;
+    std::fs::write(out.join("report.md"), report.markdown()).with_context(|| format!("writing {}", out.display()))?;
+    let c = Checkpoint::read(&out)?;
+    Ok(Row {
+        name: name.into(),
+        len: window.len,
+        stride: window.stride,
+        ssr: window.ssr,
+        layers: c.model.layers,
+        heads: c.model.heads,
+        dim: c.model.d_model,
+        r2: report.windows.r2,
+        rmse: report.windows.rmse,
+        train_seconds,
+        windows: windows.count(),
+        paper_r2: paper.0,
+        paper_rmse: paper.1,
+    })
+}
+
+fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
+    let mut md = String::new();
+    if !dataset.is_empty() {
+        let _ = writeln!(md, "**Dataset configurations** (fixed architecture)\n");
+        let _ = writeln!(md, "| Seq Len | Stride | SSR | Effective time (s) | Windows | Val R2 | Val RMSE | Paper Val R2 |");
+        let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|");
+        for r in dataset {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.3} | {} | {:.4} | {:.4} | {:.4} |",
+                r.len,
+                r.stride,
+                r.ssr,
+                (r.len * r.stride) as f64 / 1000.0,
+                r.windows,
+                r.r2,
+                r.rmse,
+                r.paper_r2
+            );
+        }
+        md.push('\n');
+    }
+    if !arch.is_empty() {
+        let _ = writeln!(md, "**Architectures** (fixed dataset configuration)\n");
+        let _ = writeln!(md, "| Layers | Heads | Embedding | Val R2 | Val RMSE | Train time (s) | Paper Val R2 | Paper Val RMSE |");
+        let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|");
+        for r in arch {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.4} | {:.4} | {:.0} | {:.4} | {:.4} |",
+                r.layers,
+                r.heads,
+                r.dim,
+                r.r2,
+                r.rmse,
+                r.train_seconds,
+                r.paper_r2,
+                r.paper_rmse.unwrap_or(f64::NAN)
+            );
+        }
+    }
+    std::fs::write(out.join("sweep.md"), &md).with_context(|| format!("writing {}/sweep.md", out.display()))?;
+    let json = serde_json::json!({ "dataset": dataset, "architecture": arch });
+    std::fs::write(out.join("sweep.json"), serde_json::to_string_pretty(&json)?)
+        .with_context(|| format!("writing {}/sweep.json", out.display()))?;
+    Ok(md)
+}
+
+pub fn run(args: SweepArgs) -> Result<()> {
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let (mut dataset, mut arch) = (Vec::new(), Vec::new());
+    if args.grid != Grid::Architecture {
+        for (len, stride, ssr, paper) in DATASET_GRID {
+            let name = format!("dataset-L{len}-s{stride}-r{ssr}");
+            dataset.push(run_one(&args, &name, WindowArgs { len, stride, ssr }, args.model.clone(), (paper, None))?);
+            write_tables(&args.out, &dataset, &arch)?;
+        }
+    }
+    if args.grid != Grid::Dataset {
+        for (layers, heads, dim, paper, paper_rmse) in ARCHITECTURE_GRID {
+            let name = format!("arch-{layers}x{heads}x{dim}");
+            let model = ModelArgs { layers: Some(layers), heads: Some(heads), dim: Some(dim), ..args.model.clone() };
+            arch.push(run_one(&args, &name, WindowArgs { len: 64, stride: 64, ssr: 16 }, model, (paper, Some(paper_rmse)))?);
+            write_tables(&args.out, &dataset, &arch)?;
+        }
+    }
+    println!("{}", write_tables(&args.out, &dataset, &arch)?);
+    Ok(())
+}
