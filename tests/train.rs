@@ -45,6 +45,10 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     for needle in ["Friction per joint", "Mass and centre of mass per link", "Inertia per link", "Overall", "Torque check"] {
         assert!(out.contains(needle), "{needle} missing from\n{out}");
     }
+    for png in ["predicted_vs_true.png", "learning_curves.png"] {
+        let bytes = std::fs::read(run.join(png)).unwrap();
+        assert!(bytes.starts_with(b"\x89PNG") && bytes.len() > 1000, "{png}");
+    }
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["windows"]["targets"].as_array().unwrap().len(), 38);
     // The true parameters predict the recorded torques far better than any small-data estimate can be expected

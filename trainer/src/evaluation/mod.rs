@@ -3,6 +3,7 @@
 //! several logs of one robot would) and the torque check (`torque`).
 
 pub mod metrics;
+pub mod plots;
 pub mod report;
 pub mod torque;
 
@@ -124,6 +125,14 @@ pub fn evaluate_checkpoint(
     let robots: Vec<u64> = validation.iter().map(|&i| windows.robots[i]).collect();
     let (rp, rt) = per_robot(&robots, &predicted, &truth);
     let robot_scores = score(&rp, &rt, &standardizer.label_std);
+    let plot_error = |e: String| InferenceError::Recording { file: dir.display().to_string(), problem: e };
+    plots::predicted_vs_true(&dir.join("predicted_vs_true.png"), &predicted, &truth, &standardizer.label_mean, &standardizer.label_std)
+        .map_err(plot_error)?;
+    let history: Option<Vec<crate::training::EpochMetrics>> =
+        std::fs::read(dir.join("metrics.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
+    if let Some(h) = history.filter(|h| !h.is_empty()) {
+        plots::learning_curves(&dir.join("learning_curves.png"), &h).map_err(plot_error)?;
+    }
 
     let torque = if torque_recordings > 0 {
         let shards = list_shards(&shard_dir(data)).unwrap_or_default();

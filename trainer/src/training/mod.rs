@@ -49,6 +49,11 @@ impl Default for TrainConfig {
     }
 }
 
+/// JSON has no infinities or NaN (serde_json writes them as null): read null back as NaN.
+fn nullable<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// One epoch's figures, as written to metrics.csv / metrics.json.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpochMetrics {
@@ -57,6 +62,8 @@ pub struct EpochMetrics {
     pub lr: f64,
     pub train_loss: f64,
     pub validation_loss: f64,
+    /// -inf when a target is constant over the validation windows (a single validation robot).
+    #[serde(deserialize_with = "nullable")]
     pub validation_r2: f64,
     pub validation_rmse: f64,
     pub windows_per_second: f64,
