@@ -1,6 +1,8 @@
 //! The estimator's training loop and checkpoints on small synthetic corpora: it can fit, it saves and loads
 //! exactly, and an interrupted run resumes to the very same result.
 
+mod common;
+
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::tensor::Device;
@@ -149,4 +151,68 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     let x: Vec<f32> = (0..12).flat_map(|i| c.standardizer.inputs(&c.windows, i)).collect();
     assert_eq!(predict(&m1, &x, 12, LEN, WIDTH, &device), predict(&m2, &x, 12, LEN, WIDTH, &device));
     assert_eq!(a.history.len(), 3);
+}
+
+/// Counts the batches of each epoch.
+struct Batches(Vec<usize>);
+
+impl TrainObserver for Batches {
+    fn step(&mut self, epoch: usize, _: usize, batches: usize, _: f64) {
+        if self.0.len() == epoch {
+            self.0.push(batches);
+        }
+    }
+}
+
+#[test]
+fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_ones() {
+    use dynforge_trainer::data::split::{Split, split_of};
+    use dynforge_worker::job::Job;
+    let dir = tempfile::tempdir().unwrap();
+    // Four robots, two trajectories each; the split seed puts robots on both sides.
+    let jobs: Vec<Job> = (0..4).flat_map(|robot| (0..2).map(move |trajectory| Job { seed: 2, robot, trajectory })).collect();
+    let paths: Vec<_> = jobs.iter().map(|j| common::write_shard(j, dir.path()).0).collect();
+    let broken = dir.path().join("r999999-t00-native.mcap");
+    std::fs::write(&broken, b"not an mcap file").unwrap();
+    let (seed, fraction) = (0..100).find(|&s| {
+        let sides: Vec<Split> = (0..4).map(|r| split_of(s, r, 0.5)).collect();
+        sides[..2].contains(&Split::Train) && sides[..2].contains(&Split::Validation)
+    }).map(|s| (s, 0.5)).unwrap();
+    let robot = dynforge_robot::generator::generate(&Default::default(), 2, 0).unwrap().model;
+    let features = JacobianFeatures::new(&robot);
+    let empty = CachedWindows { spec: WindowSpec { len: 8, stride: 64, ssr: 16 }, width: 0, data: vec![], labels: vec![], robots: vec![], hit: false };
+    let mut c = Corpus { windows: empty, train: vec![], validation: vec![], standardizer: Standardizer::fit_empty() };
+    // The first two robots' shards exist when training starts.
+    assert!(c.add_shards(&paths[..4], &features, seed, fraction).is_empty());
+    let (train0, val0) = (c.train.len(), c.validation.len());
+    assert!(train0 > 0 && val0 > 0);
+    c.standardizer = Standardizer::fit(&c.windows, &c.train);
+    let model = ModelConfig { inputs: c.standardizer.columns.len(), seq_len: 8, ..small_model() };
+    let ck = Checkpoint::new(model, &c.windows.spec, vec![], &features, &c.standardizer);
+    // Before epoch 1 the other shards (and a broken file) appear.
+    let mut calls = 0;
+    let mut skipped = Vec::new();
+    let mut grow = |c: &mut Corpus| {
+        if calls == 1 {
+            let mut new = paths[4..].to_vec();
+            new.push(broken.clone());
+            skipped = c.add_shards(&new, &features, seed, fraction);
+        }
+        calls += 1;
+    };
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let cfg = TrainConfig { epochs: 2, batch: 4, ..TrainConfig::default() };
+    let out = tempfile::tempdir().unwrap();
+    let mut batches = Batches(vec![]);
+    train(&mut c, Some(&mut grow), ck, &cfg, out.path(), false, &mut batches, &AtomicBool::new(false)).unwrap();
+    drop(grow);
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    assert!(skipped[0].contains("r999999-t00-native.mcap"), "{skipped:?}");
+    // Every new window went to its robot's side, and epoch 1 trained on the grown training split.
+    for (i, &r) in c.windows.robots.iter().enumerate() {
+        let side = if c.train.contains(&i) { Split::Train } else { Split::Validation };
+        assert_eq!(side, split_of(seed, r, fraction));
+    }
+    assert!(c.train.len() > train0 || c.validation.len() > val0);
+    assert_eq!(batches.0, [train0.div_ceil(4), c.train.len().div_ceil(4)]);
 }
