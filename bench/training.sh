@@ -31,11 +31,13 @@ json_line() { grep '^{' | tail -n 1; }
 
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)" >&2
 echo "settings: inputs $inputs, batch $batch, $steps timed steps after 3 warm-up steps" >&2
+# The whole workspace, not `-p dynforge-bench`: a package selection unifies other features and rebuilds burn.
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release/dynforge-bench-train
 results=()
 for p in paper fast; do
   echo "== preset $p: burn" >&2
-  burn=$(cargo run --release -q -p dynforge-bench --bin dynforge-bench-train -- \
-    --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" | json_line)
+  burn=$("$bin" --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" | json_line)
   echo "$burn" >&2
   echo "== preset $p: torch" >&2
   torch=$("$py" bench/torch_train.py --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" | json_line)
