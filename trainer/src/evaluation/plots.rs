@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::sync::Once;
 
-use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_proto::{LABELS, NUM_LABELS};
 use plotters::prelude::*;
 
 use crate::training::EpochMetrics;
@@ -63,17 +63,10 @@ pub fn predicted_vs_true(
     std: &[f64; NUM_LABELS],
 ) -> Result<(), String> {
     font();
-    use LabelKind::*;
-    let groups: [(&str, &[LabelKind]); 5] = [
-        ("Coulomb friction", &[Coulomb]),
-        ("viscous friction", &[Viscous]),
-        ("mass", &[Mass]),
-        ("centre of mass", &[Com]),
-        ("inertia", &[Ixx, Iyy, Izz]),
-    ];
+    let groups = super::report::GROUPS;
     let root = BitMapBackend::new(path, (1500, 320)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| fail(path, e))?;
-    for ((name, kinds), area) in groups.iter().zip(root.split_evenly((1, groups.len()))) {
+    for ((_, name, kinds), area) in groups.iter().zip(root.split_evenly((1, groups.len()))) {
         let z = |v: f64, k: usize| (v - mean[k]) / std[k];
         let points: Vec<(f64, f64)> = LABELS
             .iter()

@@ -49,19 +49,20 @@ pub fn tables(s: &Scores) -> String {
     out
 }
 
+/// The parameter groups of summaries and plots: short name, title, the label kinds in the group.
+pub const GROUPS: [(&str, &str, &[LabelKind]); 5] = [
+    ("coulomb", "Coulomb friction", &[LabelKind::Coulomb]),
+    ("viscous", "viscous friction", &[LabelKind::Viscous]),
+    ("mass", "mass", &[LabelKind::Mass]),
+    ("com", "centre of mass", &[LabelKind::Com]),
+    ("inertia", "inertia", &[LabelKind::Ixx, LabelKind::Iyy, LabelKind::Izz]),
+];
+
 /// Mean R2 of each parameter group (friction, mass, COM, inertia), for one-line summaries.
 pub fn group_r2(s: &Scores) -> Vec<(&'static str, f64)> {
-    use LabelKind::*;
-    let groups: [(&str, &[LabelKind]); 5] = [
-        ("coulomb", &[Coulomb]),
-        ("viscous", &[Viscous]),
-        ("mass", &[Mass]),
-        ("com", &[Com]),
-        ("inertia", &[Ixx, Iyy, Izz]),
-    ];
-    groups
+    GROUPS
         .iter()
-        .map(|(name, kinds)| {
+        .map(|(name, _, kinds)| {
             let v: Vec<f64> =
                 LABELS.iter().zip(&s.targets).filter(|(l, _)| kinds.contains(&l.kind)).map(|(_, t)| t.r2).collect();
             (*name, v.iter().sum::<f64>() / v.len() as f64)
