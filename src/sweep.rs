@@ -36,8 +36,12 @@ const DATASET_GRID: [(usize, usize, usize, f64); 16] = [
 ];
 
 /// The paper's architecture grid: (layers, heads, embedding, its validation R2 and RMSE).
-const ARCHITECTURE_GRID: [(usize, usize, usize, f64, f64); 4] =
-    [(2, 16, 256, 0.8460, 0.1185), (4, 16, 128, 0.8555, 0.1148), (4, 32, 128, 0.8633, 0.1116), (8, 32, 128, 0.8410, 0.1200)];
+const ARCHITECTURE_GRID: [(usize, usize, usize, f64, f64); 4] = [
+    (2, 16, 256, 0.8460, 0.1185),
+    (4, 16, 128, 0.8555, 0.1148),
+    (4, 32, 128, 0.8633, 0.1116),
+    (8, 32, 128, 0.8410, 0.1200),
+];
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum Grid {
@@ -80,7 +84,13 @@ struct Row {
     paper_rmse: Option<f64>,
 }
 
-fn run_one(args: &SweepArgs, name: &str, window: WindowArgs, model: ModelArgs, paper: (f64, Option<f64>)) -> Result<Row> {
+fn run_one(
+    args: &SweepArgs,
+    name: &str,
+    window: WindowArgs,
+    model: ModelArgs,
+    paper: (f64, Option<f64>),
+) -> Result<Row> {
     let out = args.out.join(name);
     eprintln!("== {name}");
     let started = Instant::now();
@@ -119,7 +129,10 @@ fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
     let mut md = String::new();
     if !dataset.is_empty() {
         let _ = writeln!(md, "**Dataset configurations** (fixed architecture)\n");
-        let _ = writeln!(md, "| Seq Len | Stride | SSR | Effective time (s) | Windows | Val R2 | Val RMSE | Paper Val R2 |");
+        let _ = writeln!(
+            md,
+            "| Seq Len | Stride | SSR | Effective time (s) | Windows | Val R2 | Val RMSE | Paper Val R2 |"
+        );
         let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|");
         for r in dataset {
             let _ = writeln!(
@@ -139,7 +152,10 @@ fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
     }
     if !arch.is_empty() {
         let _ = writeln!(md, "**Architectures** (fixed dataset configuration)\n");
-        let _ = writeln!(md, "| Layers | Heads | Embedding | Val R2 | Val RMSE | Train time (s) | Paper Val R2 | Paper Val RMSE |");
+        let _ = writeln!(
+            md,
+            "| Layers | Heads | Embedding | Val R2 | Val RMSE | Train time (s) | Paper Val R2 | Paper Val RMSE |"
+        );
         let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|");
         for r in arch {
             let _ = writeln!(
@@ -177,7 +193,13 @@ pub fn run(args: SweepArgs) -> Result<()> {
         for (layers, heads, dim, paper, paper_rmse) in ARCHITECTURE_GRID {
             let name = format!("arch-{layers}x{heads}x{dim}");
             let model = ModelArgs { layers: Some(layers), heads: Some(heads), dim: Some(dim), ..args.model.clone() };
-            arch.push(run_one(&args, &name, WindowArgs { len: 64, stride: 64, ssr: 16 }, model, (paper, Some(paper_rmse)))?);
+            arch.push(run_one(
+                &args,
+                &name,
+                WindowArgs { len: 64, stride: 64, ssr: 16 },
+                model,
+                (paper, Some(paper_rmse)),
+            )?);
             write_tables(&args.out, &dataset, &arch)?;
         }
     }

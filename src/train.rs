@@ -318,26 +318,32 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
         eprintln!("note: {} holds no run to resume; starting a new one", job.out.display());
     }
     if !resume && Checkpoint::read(job.out).is_ok() {
-        bail!("{} already holds a checkpoint: pass --resume to continue it, or choose another --out", job.out.display());
+        bail!(
+            "{} already holds a checkpoint: pass --resume to continue it, or choose another --out",
+            job.out.display()
+        );
     }
     let previous = if resume { Some(Checkpoint::read(job.out)?) } else { None };
     let spec = match &previous {
         Some(c) => c.window_spec(),
         None => job.window.spec()?,
     };
-    let (split_seed, fraction) = previous.as_ref().map_or((o.seed, o.validation), |c| (c.split_seed, c.validation_fraction));
+    let (split_seed, fraction) =
+        previous.as_ref().map_or((o.seed, o.validation), |c| (c.split_seed, c.validation_fraction));
     catch_interrupts();
     let (windows, features, joints) = if job.follow {
         let robot = wait_for_robot(job.data)?;
         let joints = robot.joints().iter().map(|j| j.name.clone()).collect();
-        let empty = CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
+        let empty =
+            CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
         (empty, JacobianFeatures::new(&robot), joints)
     } else {
         load_windows(job.data, &spec)?
     };
     // After the first shard exists, so that `shards/` of a generate directory is what is followed.
     let mut follower = ShardFollower::new(&shard_dir(job.data));
-    let mut corpus = Corpus { windows, train: Vec::new(), validation: Vec::new(), standardizer: Standardizer::fit_empty() };
+    let mut corpus =
+        Corpus { windows, train: Vec::new(), validation: Vec::new(), standardizer: Standardizer::fit_empty() };
     if job.follow {
         // Both splits need windows before the statistics can be fitted.
         loop {
@@ -404,7 +410,12 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
             for s in &skipped {
                 eprintln!("warning: skipped {s}");
             }
-            eprintln!("follow: {} new shards, {} new windows ({} skipped)", new.len(), c.windows.count() - before, skipped.len());
+            eprintln!(
+                "follow: {} new shards, {} new windows ({} skipped)",
+                new.len(),
+                c.windows.count() - before,
+                skipped.len()
+            );
         }
         Ok(_) => {}
         Err(e) => eprintln!("warning: listing {}: {e}", job.data.display()),
@@ -452,9 +463,11 @@ fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>
     })?;
     b.finish_and_clear();
     let md = report.markdown();
-    std::fs::write(checkpoint.join("report.md"), &md).with_context(|| format!("writing {}/report.md", checkpoint.display()))?;
+    std::fs::write(checkpoint.join("report.md"), &md)
+        .with_context(|| format!("writing {}/report.md", checkpoint.display()))?;
     let json = serde_json::to_string_pretty(&report)?;
-    std::fs::write(checkpoint.join("report.json"), json).with_context(|| format!("writing {}/report.json", checkpoint.display()))?;
+    std::fs::write(checkpoint.join("report.json"), json)
+        .with_context(|| format!("writing {}/report.json", checkpoint.display()))?;
     println!("{md}");
     eprintln!("written: {0}/report.md, {0}/report.json", checkpoint.display());
     Ok(report)
@@ -485,9 +498,19 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
         let map: serde_json::Map<String, serde_json::Value> = LABELS
             .iter()
             .enumerate()
-            .map(|(k, l)| (l.name.to_string(), serde_json::json!({"value": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()})))
+            .map(|(k, l)| {
+                (
+                    l.name.to_string(),
+                    serde_json::json!({"value": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()}),
+                )
+            })
             .collect();
-        println!("{}", serde_json::to_string_pretty(&serde_json::json!({"windows": e.windows, "parameters": map, "projections": notes, "urdf": out}))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(
+                &serde_json::json!({"windows": e.windows, "parameters": map, "projections": notes, "urdf": out})
+            )?
+        );
     } else {
         println!("{}: {} windows", args.log.display(), e.windows);
         println!("{:<12} {:>12} {:>12}  unit", "parameter", "estimate", "spread");

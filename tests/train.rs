@@ -15,8 +15,22 @@ fn ok(o: std::process::Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
-const SMALL: [&str; 14] =
-    ["--preset", "fast", "--layers", "1", "--heads", "2", "--dim", "16", "--epochs", "2", "--batch", "16", "--validation", "0.5"];
+const SMALL: [&str; 14] = [
+    "--preset",
+    "fast",
+    "--layers",
+    "1",
+    "--heads",
+    "2",
+    "--dim",
+    "16",
+    "--epochs",
+    "2",
+    "--batch",
+    "16",
+    "--validation",
+    "0.5",
+];
 
 fn first_shard(data: &Path) -> std::path::PathBuf {
     let mut v: Vec<_> = std::fs::read_dir(data.join("shards")).unwrap().map(|e| e.unwrap().path()).collect();
@@ -42,7 +56,9 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
 
     let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2"]));
-    for needle in ["Friction per joint", "Mass and centre of mass per link", "Inertia per link", "Overall", "Torque check"] {
+    for needle in
+        ["Friction per joint", "Mass and centre of mass per link", "Inertia per link", "Overall", "Torque check"]
+    {
         assert!(out.contains(needle), "{needle} missing from\n{out}");
     }
     for png in ["predicted_vs_true.png", "learning_curves.png"] {
@@ -58,7 +74,15 @@ fn train_evaluate_and_estimate_a_small_dataset() {
 
     let shard = first_shard(&data);
     let urdf = dir.path().join("estimated.urdf");
-    let out = ok(dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), shard.to_str().unwrap(), "--out", urdf.to_str().unwrap(), "--json"]));
+    let out = ok(dynforge(&[
+        "estimate",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        shard.to_str().unwrap(),
+        "--out",
+        urdf.to_str().unwrap(),
+        "--json",
+    ]));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["parameters"].as_object().unwrap().len(), 38);
     let model = dynforge_robot::urdf::load(&urdf).unwrap();
@@ -66,11 +90,17 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
         let est = v["parameters"][l.name]["value"].as_f64().unwrap();
         let projected = v["projections"].as_array().unwrap().iter().any(|p| p.as_str().unwrap().contains(l.name));
-        assert!(projected || (y[k] - est).abs() <= 1e-9 * est.abs().max(1e-9), "{}: URDF {} vs estimate {est}", l.name, y[k]);
+        assert!(
+            projected || (y[k] - est).abs() <= 1e-9 * est.abs().max(1e-9),
+            "{}: URDF {} vs estimate {est}",
+            l.name,
+            y[k]
+        );
     }
 
     // Bad inputs: a checkpoint for another feature set, a bag without /joint_states, joints of other names.
-    let mut ck: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
+    let mut ck: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
     ck["features"].as_array_mut().unwrap()[0] = "J_other".into();
     let other = dir.path().join("other");
     std::fs::create_dir(&other).unwrap();
@@ -82,14 +112,28 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     let empty = dir.path().join("empty.mcap");
     let robot = std::fs::read_to_string(&urdf).unwrap();
     let metadata = dynforge_shard::Metadata::new();
-    dynforge_shard::write(&empty, &dynforge_shard::ShardContent { urdf: &robot, joint_states: &[], metadata: &metadata })
-        .unwrap();
+    dynforge_shard::write(
+        &empty,
+        &dynforge_shard::ShardContent { urdf: &robot, joint_states: &[], metadata: &metadata },
+    )
+    .unwrap();
     let o = dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), empty.to_str().unwrap()]);
-    assert!(!o.status.success() && stderr(&o).contains("empty.mcap") && stderr(&o).contains("/joint_states"), "{}", stderr(&o));
+    assert!(
+        !o.status.success() && stderr(&o).contains("empty.mcap") && stderr(&o).contains("/joint_states"),
+        "{}",
+        stderr(&o)
+    );
 
     let renamed = dir.path().join("renamed.urdf");
     std::fs::write(&renamed, robot.replace("\"joint_1\"", "\"shoulder\"")).unwrap();
-    let o = dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), shard.to_str().unwrap(), "--urdf", renamed.to_str().unwrap()]);
+    let o = dynforge(&[
+        "estimate",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        shard.to_str().unwrap(),
+        "--urdf",
+        renamed.to_str().unwrap(),
+    ]);
     assert!(!o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("shoulder") || stderr(&o).contains("joint"), "{}", stderr(&o));
 

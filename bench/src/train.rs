@@ -9,7 +9,8 @@ use dynforge_trainer::training::synthetic_throughput;
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 fn main() -> Result<()> {
-    let (mut preset, mut inputs, mut steps, mut batch, mut seq_len) = ("fast".to_string(), 90usize, 20usize, 64usize, 64usize);
+    let (mut preset, mut inputs, mut steps, mut batch, mut seq_len) =
+        ("fast".to_string(), 90usize, 20usize, 64usize, 64usize);
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));

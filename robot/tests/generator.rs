@@ -94,11 +94,17 @@ fn labels_carried_onto_another_robot_read_back_exactly_and_reproduce_its_torques
         assert!(notes.is_empty(), "{notes:?}");
         let back = labels(&moved).unwrap();
         for k in 0..y.len() {
-            assert!((back[k] - y[k]).abs() <= 1e-12 * y[k].abs().max(1e-6), "robot {id} label {k}: {} vs {}", back[k], y[k]);
+            assert!(
+                (back[k] - y[k]).abs() <= 1e-12 * y[k].abs().max(1e-6),
+                "robot {id} label {k}: {} vs {}",
+                back[k],
+                y[k]
+            );
         }
         // Generated links have their COM on the link axis and no products of inertia, and link 1's unlabelled
         // parameters do not enter its dynamics: `b`'s torques follow from the labels alone (to rounding).
-        let (q, qd, qdd) = ([0.3, -0.7, 1.1, 0.4, -0.2, 0.9], [0.5, -0.4, 0.3, 1.0, -0.8, 0.6], [1.0, 2.0, -1.0, 0.5, 0.3, -2.0]);
+        let (q, qd, qdd) =
+            ([0.3, -0.7, 1.1, 0.4, -0.2, 0.9], [0.5, -0.4, 0.3, 1.0, -0.8, 0.6], [1.0, 2.0, -1.0, 0.5, 0.3, -2.0]);
         let (mut da, mut db) = (Data::new(&moved), Data::new(&b));
         let ta = rnea(&moved, &mut da, &q, &qd, &qdd).to_vec();
         let tb = rnea(&b, &mut db, &q, &qd, &qdd);

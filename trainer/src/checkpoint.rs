@@ -127,14 +127,23 @@ impl Checkpoint {
     }
 
     /// Refuses a recording whose robot or features differ from the training ones, naming the first difference.
-    pub fn check_fits(&self, dir: &Path, joints: &[String], features: &JacobianFeatures) -> Result<(), CheckpointError> {
+    pub fn check_fits(
+        &self,
+        dir: &Path,
+        joints: &[String],
+        features: &JacobianFeatures,
+    ) -> Result<(), CheckpointError> {
         let mismatch = |problem: String| CheckpointError::Mismatch { checkpoint: dir.display().to_string(), problem };
         if joints != self.joints.as_slice() {
             return Err(mismatch(format!("joints are {joints:?}, the model was trained on {:?}", self.joints)));
         }
         let names: Vec<&str> = features.entries.iter().map(|e| e.name.as_str()).collect();
         if names != self.features.iter().map(String::as_str).collect::<Vec<_>>() {
-            let first = names.iter().zip(&self.features).position(|(a, b)| a != b).unwrap_or(names.len().min(self.features.len()));
+            let first = names
+                .iter()
+                .zip(&self.features)
+                .position(|(a, b)| a != b)
+                .unwrap_or(names.len().min(self.features.len()));
             return Err(mismatch(format!(
                 "the robot's kinematics give {} Jacobian features, the model was trained on {} (first difference at feature {first})",
                 names.len(),
@@ -163,7 +172,14 @@ impl Checkpoint {
     pub fn read(dir: &Path) -> Result<Checkpoint, CheckpointError> {
         let path = dir.join(CONFIG_FILE);
         let text = std::fs::read(&path).map_err(|e| {
-            file_error(&path, if e.kind() == std::io::ErrorKind::NotFound { "not a checkpoint (no checkpoint.json)".into() } else { e.to_string() })
+            file_error(
+                &path,
+                if e.kind() == std::io::ErrorKind::NotFound {
+                    "not a checkpoint (no checkpoint.json)".into()
+                } else {
+                    e.to_string()
+                },
+            )
         })?;
         let c: Checkpoint = serde_json::from_slice(&text).map_err(|e| file_error(&path, e))?;
         if c.format != FORMAT {

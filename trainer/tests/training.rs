@@ -26,7 +26,8 @@ fn corpus(n: usize, seed: u64) -> Corpus {
     let mut labels = Vec::new();
     for _ in 0..n {
         let w: Vec<f32> = (0..LEN * WIDTH).map(|_| rng.uniform(-1.0, 1.0) as f32).collect();
-        let means: Vec<f64> = (0..WIDTH).map(|c| w.iter().skip(c).step_by(WIDTH).map(|v| *v as f64).sum::<f64>()).collect();
+        let means: Vec<f64> =
+            (0..WIDTH).map(|c| w.iter().skip(c).step_by(WIDTH).map(|v| *v as f64).sum::<f64>()).collect();
         labels.push(std::array::from_fn(|k| means[k % WIDTH] * (1.0 + k as f64 / 10.0) + k as f64));
         data.extend(w);
     }
@@ -62,10 +63,17 @@ fn a_model_overfits_a_tiny_set_by_orders_of_magnitude() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let mut c = corpus(16, 1);
     let dir = tempfile::tempdir().unwrap();
-    let cfg = TrainConfig { epochs: 400, batch: 16, lr: 3e-3, warmup: 0.02, weight_decay: 0.0, patience: 1000, ..TrainConfig::default() };
+    let cfg = TrainConfig {
+        epochs: 400,
+        batch: 16,
+        lr: 3e-3,
+        warmup: 0.02,
+        weight_decay: 0.0,
+        patience: 1000,
+        ..TrainConfig::default()
+    };
     let ck = checkpoint(&c, small_model());
-    let summary =
-        train(&mut c, None, ck, &cfg, dir.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
+    let summary = train(&mut c, None, ck, &cfg, dir.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
     let first = summary.history[0].train_loss;
     let best = summary.history.iter().map(|m| m.validation_loss).fold(f64::INFINITY, f64::min);
     // Standardised targets start near unit loss; fitting 16 windows must drive it down by >= 2 orders.
@@ -123,22 +131,13 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     let whole = tempfile::tempdir().unwrap();
     let mut c = corpus(12, 3);
     let ck = checkpoint(&c, model.clone());
-    let a = train(&mut c, None, ck.clone(), &cfg, whole.path(), false, &mut (), &AtomicBool::new(false))
-        .unwrap();
+    let a = train(&mut c, None, ck.clone(), &cfg, whole.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
     // The same run, stopped mid-epoch 1 (step 5 of 3 x 3), then resumed.
     let parts = tempfile::tempdir().unwrap();
     let flag = AtomicBool::new(false);
-    let stopped = train(
-        &mut c,
-        None,
-        ck.clone(),
-        &cfg,
-        parts.path(),
-        false,
-        &mut StopAt { at: 5, seen: 0, flag: &flag },
-        &flag,
-    )
-    .unwrap();
+    let stopped =
+        train(&mut c, None, ck.clone(), &cfg, parts.path(), false, &mut StopAt { at: 5, seen: 0, flag: &flag }, &flag)
+            .unwrap();
     assert!(stopped.interrupted && stopped.history.len() == 1);
     let b = train(&mut c, None, ck, &cfg, parts.path(), true, &mut (), &AtomicBool::new(false)).unwrap();
     assert!(!b.interrupted);
@@ -170,17 +169,28 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     use dynforge_worker::job::Job;
     let dir = tempfile::tempdir().unwrap();
     // Four robots, two trajectories each; the split seed puts robots on both sides.
-    let jobs: Vec<Job> = (0..4).flat_map(|robot| (0..2).map(move |trajectory| Job { seed: 2, robot, trajectory })).collect();
+    let jobs: Vec<Job> =
+        (0..4).flat_map(|robot| (0..2).map(move |trajectory| Job { seed: 2, robot, trajectory })).collect();
     let paths: Vec<_> = jobs.iter().map(|j| common::write_shard(j, dir.path()).0).collect();
     let broken = dir.path().join("r999999-t00-native.mcap");
     std::fs::write(&broken, b"not an mcap file").unwrap();
-    let (seed, fraction) = (0..100).find(|&s| {
-        let sides: Vec<Split> = (0..4).map(|r| split_of(s, r, 0.5)).collect();
-        sides[..2].contains(&Split::Train) && sides[..2].contains(&Split::Validation)
-    }).map(|s| (s, 0.5)).unwrap();
+    let (seed, fraction) = (0..100)
+        .find(|&s| {
+            let sides: Vec<Split> = (0..4).map(|r| split_of(s, r, 0.5)).collect();
+            sides[..2].contains(&Split::Train) && sides[..2].contains(&Split::Validation)
+        })
+        .map(|s| (s, 0.5))
+        .unwrap();
     let robot = dynforge_robot::generator::generate(&Default::default(), 2, 0).unwrap().model;
     let features = JacobianFeatures::new(&robot);
-    let empty = CachedWindows { spec: WindowSpec { len: 8, stride: 64, ssr: 16 }, width: 0, data: vec![], labels: vec![], robots: vec![], hit: false };
+    let empty = CachedWindows {
+        spec: WindowSpec { len: 8, stride: 64, ssr: 16 },
+        width: 0,
+        data: vec![],
+        labels: vec![],
+        robots: vec![],
+        hit: false,
+    };
     let mut c = Corpus { windows: empty, train: vec![], validation: vec![], standardizer: Standardizer::fit_empty() };
     // The first two robots' shards exist when training starts.
     assert!(c.add_shards(&paths[..4], &features, seed, fraction).is_empty());

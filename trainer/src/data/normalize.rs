@@ -33,7 +33,13 @@ fn mean_std(sum: f64, sum2: f64, n: f64) -> (f64, f64) {
 impl Standardizer {
     /// A placeholder with no columns, to be replaced by a fitted one.
     pub fn fit_empty() -> Standardizer {
-        Standardizer { columns: Vec::new(), mean: Vec::new(), std: Vec::new(), label_mean: [0.0; NUM_LABELS], label_std: [1.0; NUM_LABELS] }
+        Standardizer {
+            columns: Vec::new(),
+            mean: Vec::new(),
+            std: Vec::new(),
+            label_mean: [0.0; NUM_LABELS],
+            label_std: [1.0; NUM_LABELS],
+        }
     }
 
     /// Statistics of the windows `train` of `w`.

@@ -42,7 +42,13 @@ pub fn score(predicted: &[[f64; NUM_LABELS]], truth: &[[f64; NUM_LABELS]], scale
             let ss_res: f64 = predicted.iter().zip(truth).map(|(p, t)| (p[k] - t[k]).powi(2)).sum();
             let rmse_si = (ss_res / n).sqrt();
             // A constant target is predicted perfectly or not at all.
-            let r2 = if ss_tot > 0.0 { 1.0 - ss_res / ss_tot } else if ss_res == 0.0 { 1.0 } else { f64::NEG_INFINITY };
+            let r2 = if ss_tot > 0.0 {
+                1.0 - ss_res / ss_tot
+            } else if ss_res == 0.0 {
+                1.0
+            } else {
+                f64::NEG_INFINITY
+            };
             TargetScore { r2, rmse: rmse_si / scale[k], rmse_si }
         })
         .collect();

@@ -59,8 +59,7 @@ impl Report {
             self.checkpoint, self.epoch
         );
         out.push_str(&report::tables(&self.windows));
-        let groups: Vec<String> =
-            report::group_r2(&self.windows).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
+        let groups: Vec<String> = report::group_r2(&self.windows).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
         out.push_str(&format!("\nMean R2 per group: {}\n", groups.join(", ")));
         out.push_str(&format!(
             "\nPer robot ({} robots, each the mean of its windows): R2 = {:.4}, RMSE = {:.4}\n",
@@ -72,15 +71,20 @@ impl Report {
                 t.recordings
             ));
             let joints = t.estimated.len();
-            out.push_str(&format!("| parameters |{} overall |\n|---|{}---:|\n",
+            out.push_str(&format!(
+                "| parameters |{} overall |\n|---|{}---:|\n",
                 (0..joints).map(|j| format!(" J{j} |")).collect::<String>(),
-                "---:|".repeat(joints)));
+                "---:|".repeat(joints)
+            ));
             for (name, v, o) in [
                 ("estimated", &t.estimated, t.estimated_overall),
                 ("true", &t.truth, t.truth_overall),
                 ("training mean", &t.mean, t.mean_overall),
             ] {
-                out.push_str(&format!("| {name} |{} {o:.4} |\n", v.iter().map(|x| format!(" {x:.4} |")).collect::<String>()));
+                out.push_str(&format!(
+                    "| {name} |{} {o:.4} |\n",
+                    v.iter().map(|x| format!(" {x:.4} |")).collect::<String>()
+                ));
             }
             if t.projections > 0 {
                 out.push_str(&format!("\n{} estimated values were projected to physical ones.\n", t.projections));
@@ -91,7 +95,11 @@ impl Report {
 }
 
 /// Averages predictions per robot.
-fn per_robot(robots: &[u64], predicted: &[[f64; NUM_LABELS]], truth: &[[f64; NUM_LABELS]]) -> (Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>) {
+fn per_robot(
+    robots: &[u64],
+    predicted: &[[f64; NUM_LABELS]],
+    truth: &[[f64; NUM_LABELS]],
+) -> (Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>) {
     let mut acc: BTreeMap<u64, ([f64; NUM_LABELS], usize, [f64; NUM_LABELS])> = BTreeMap::new();
     for ((r, p), t) in robots.iter().zip(predicted).zip(truth) {
         let e = acc.entry(*r).or_insert(([0.0; NUM_LABELS], 0, *t));
@@ -126,8 +134,14 @@ pub fn evaluate_checkpoint(
     let (rp, rt) = per_robot(&robots, &predicted, &truth);
     let robot_scores = score(&rp, &rt, &standardizer.label_std);
     let plot_error = |e: String| InferenceError::Recording { file: dir.display().to_string(), problem: e };
-    plots::predicted_vs_true(&dir.join("predicted_vs_true.png"), &predicted, &truth, &standardizer.label_mean, &standardizer.label_std)
-        .map_err(plot_error)?;
+    plots::predicted_vs_true(
+        &dir.join("predicted_vs_true.png"),
+        &predicted,
+        &truth,
+        &standardizer.label_mean,
+        &standardizer.label_std,
+    )
+    .map_err(plot_error)?;
     let history: Option<Vec<crate::training::EpochMetrics>> =
         std::fs::read(dir.join("metrics.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
     if let Some(h) = history.filter(|h| !h.is_empty()) {
@@ -146,13 +160,17 @@ pub fn evaluate_checkpoint(
                 chosen.push(prep);
             }
         }
-        let (mut est, mut tru, mut mean) = (TorqueResidual::default(), TorqueResidual::default(), TorqueResidual::default());
+        let (mut est, mut tru, mut mean) =
+            (TorqueResidual::default(), TorqueResidual::default(), TorqueResidual::default());
         let mut projections = 0;
         let mean_labels: [f64; NUM_LABELS] = standardizer.label_mean;
         for (k, prep) in chosen.iter().enumerate() {
             progress("torque check", k, chosen.len());
             let e = predictor.estimate_prepared(dir, prep)?;
-            let bad = |e: dynforge_robot::ModelError| InferenceError::Recording { file: prep.path.display().to_string(), problem: e.to_string() };
+            let bad = |e: dynforge_robot::ModelError| InferenceError::Recording {
+                file: prep.path.display().to_string(),
+                problem: e.to_string(),
+            };
             let (m_est, notes) = with_labels(&prep.model, &e.labels).map_err(bad)?;
             let (m_mean, _) = with_labels(&prep.model, &mean_labels).map_err(bad)?;
             projections += notes.len();
@@ -174,11 +192,5 @@ pub fn evaluate_checkpoint(
     } else {
         None
     };
-    Ok(Report {
-        checkpoint: dir.display().to_string(),
-        epoch: c.epoch,
-        windows: scores,
-        robots: robot_scores,
-        torque,
-    })
+    Ok(Report { checkpoint: dir.display().to_string(), epoch: c.epoch, windows: scores, robots: robot_scores, torque })
 }

@@ -50,7 +50,12 @@ pub fn learning_curves(path: &Path, history: &[EpochMetrics]) -> Result<(), Stri
             .label(name)
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
     }
-    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(|e| fail(path, e))?;
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(|e| fail(path, e))?;
     root.present().map_err(|e| fail(path, e))
 }
 

@@ -42,7 +42,14 @@ fn table(out: &mut String, s: &Scores, title: &str, row: &str, rows: &[usize], k
 pub fn tables(s: &Scores) -> String {
     let mut out = String::new();
     use LabelKind::*;
-    table(&mut out, s, "Friction per joint", "Joint", &[0, 1, 2, 3, 4, 5], &[(Coulomb, "Coulomb"), (Viscous, "Viscous")]);
+    table(
+        &mut out,
+        s,
+        "Friction per joint",
+        "Joint",
+        &[0, 1, 2, 3, 4, 5],
+        &[(Coulomb, "Coulomb"), (Viscous, "Viscous")],
+    );
     table(&mut out, s, "Mass and centre of mass per link", "Link", &[2, 3, 4, 5, 6], &[(Mass, "Mass"), (Com, "COM")]);
     table(&mut out, s, "Inertia per link", "Link", &[1, 2, 3, 4, 5, 6], &[(Ixx, "Ixx"), (Iyy, "Iyy"), (Izz, "Izz")]);
     let _ = writeln!(out, "**Overall** ({} samples): R2 = {:.4}, RMSE = {:.4}", s.count, s.r2, s.rmse);

@@ -85,7 +85,8 @@ mod tests {
         let mut fr = vec![0.0; n];
         for i in 0..samples {
             let time = i as f64 * dt;
-            let (a, w, p) = (|j: usize| 0.4 + 0.1 * j as f64, |j: usize| 1.0 + 0.3 * j as f64, |j: usize| 0.7 * j as f64);
+            let (a, w, p) =
+                (|j: usize| 0.4 + 0.1 * j as f64, |j: usize| 1.0 + 0.3 * j as f64, |j: usize| 0.7 * j as f64);
             let q: Vec<f64> = (0..n).map(|j| a(j) * (w(j) * time + p(j)).sin()).collect();
             let qd: Vec<f64> = (0..n).map(|j| a(j) * w(j) * (w(j) * time + p(j)).cos()).collect();
             let qdd: Vec<f64> = (0..n).map(|j| -a(j) * w(j) * w(j) * (w(j) * time + p(j)).sin()).collect();

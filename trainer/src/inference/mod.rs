@@ -83,18 +83,25 @@ impl Predictor {
         let s = self.checkpoint.standardizer();
         let x: Vec<f32> = (0..count).flat_map(|i| s.inputs(&w, i)).collect();
         let per_window: Vec<[f64; NUM_LABELS]> =
-            predict(&self.model, &x, count, spec.len, s.columns.len(), &self.device).iter().map(|t| s.labels(t)).collect();
+            predict(&self.model, &x, count, spec.len, s.columns.len(), &self.device)
+                .iter()
+                .map(|t| s.labels(t))
+                .collect();
         let n = count as f64;
         let labels: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
-        let spread = std::array::from_fn(|k| {
-            (per_window.iter().map(|y| (y[k] - labels[k]).powi(2)).sum::<f64>() / n).sqrt()
-        });
+        let spread =
+            std::array::from_fn(|k| (per_window.iter().map(|y| (y[k] - labels[k]).powi(2)).sum::<f64>() / n).sqrt());
         Ok(Estimate { labels, spread, windows: count })
     }
 
     /// Reads and estimates the recording `path`; its robot comes from its `/robot_description` unless `urdf` is
     /// given.
-    pub fn estimate(&self, dir: &Path, path: &Path, urdf: Option<&Model>) -> Result<(Prepared, Estimate), InferenceError> {
+    pub fn estimate(
+        &self,
+        dir: &Path,
+        path: &Path,
+        urdf: Option<&Model>,
+    ) -> Result<(Prepared, Estimate), InferenceError> {
         let p = prepare(path, urdf)?;
         let e = self.estimate_prepared(dir, &p)?;
         Ok((p, e))

@@ -45,7 +45,16 @@ pub struct TrainConfig {
 
 impl Default for TrainConfig {
     fn default() -> Self {
-        TrainConfig { epochs: 30, batch: 64, lr: 5e-4, warmup: 0.05, weight_decay: 1e-2, clip: 1.0, patience: 6, seed: 0 }
+        TrainConfig {
+            epochs: 30,
+            batch: 64,
+            lr: 5e-4,
+            warmup: 0.05,
+            weight_decay: 1e-2,
+            clip: 1.0,
+            patience: 6,
+            seed: 0,
+        }
     }
 }
 
@@ -149,7 +158,11 @@ impl Corpus {
             };
             let width = row_width(&prep.model, features);
             if self.windows.count() > 0 && width != self.windows.width {
-                skipped.push(format!("{}: {width} values per step, the dataset has {}", p.display(), self.windows.width));
+                skipped.push(format!(
+                    "{}: {width} values per step, the dataset has {}",
+                    p.display(),
+                    self.windows.width
+                ));
                 continue;
             }
             self.windows.width = width;
@@ -182,12 +195,22 @@ impl Corpus {
 }
 
 /// Standardised predictions of `model` for standardised inputs `x` (`count x L x F`), in batches.
-pub fn predict(model: &Estimator, x: &[f32], count: usize, len: usize, width: usize, device: &Device) -> Vec<[f32; NUM_LABELS]> {
+pub fn predict(
+    model: &Estimator,
+    x: &[f32],
+    count: usize,
+    len: usize,
+    width: usize,
+    device: &Device,
+) -> Vec<[f32; NUM_LABELS]> {
     let mut out = Vec::with_capacity(count);
     let per = len * width;
     for start in (0..count).step_by(256) {
         let n = (count - start).min(256);
-        let t = Tensor::<3>::from_data(TensorData::new(x[start * per..(start + n) * per].to_vec(), [n, len, width]), device);
+        let t = Tensor::<3>::from_data(
+            TensorData::new(x[start * per..(start + n) * per].to_vec(), [n, len, width]),
+            device,
+        );
         let y: Vec<f32> = model.forward(t).into_data().try_to_vec::<f32>().expect("f32 predictions");
         out.extend(y.chunks_exact(NUM_LABELS).map(|c| <[f32; NUM_LABELS]>::try_from(c).expect("38")));
     }
@@ -247,22 +270,37 @@ fn save_state(dir: &Path, model: &Estimator, optim: &ModuleOptimizer, state: &Tr
     Ok(())
 }
 
-fn load_state(dir: &Path, model: &mut Estimator, optim: ModuleOptimizer) -> Result<(ModuleOptimizer, TrainState), TrainError> {
+fn load_state(
+    dir: &Path,
+    model: &mut Estimator,
+    optim: ModuleOptimizer,
+) -> Result<(ModuleOptimizer, TrainState), TrainError> {
     let t = train_dir(dir);
     let read = |name: &str| std::fs::read(t.join(name)).map_err(|e| io(&t.join(name), e));
     let state: TrainState = serde_json::from_slice(&read("state.json")?).map_err(|e| io(&t.join("state.json"), e))?;
     let mut store = BurnpackStore::from_bytes(Some(Bytes::from_bytes_vec(read("last.bpk")?)));
     model.load_from(&mut store).map_err(|e| io(&t.join("last.bpk"), e))?;
-    let optim = optim.from_bytes(Bytes::from_bytes_vec(read("optimizer.bin")?)).map_err(|e| io(&t.join("optimizer.bin"), e))?;
+    let optim =
+        optim.from_bytes(Bytes::from_bytes_vec(read("optimizer.bin")?)).map_err(|e| io(&t.join("optimizer.bin"), e))?;
     Ok((optim, state))
 }
 
 fn write_metrics(dir: &Path, history: &[EpochMetrics]) -> Result<(), TrainError> {
-    let mut csv = String::from("epoch,step,lr,train_loss,validation_loss,validation_r2,validation_rmse,windows_per_second,seconds\n");
+    let mut csv = String::from(
+        "epoch,step,lr,train_loss,validation_loss,validation_r2,validation_rmse,windows_per_second,seconds\n",
+    );
     for m in history {
         csv.push_str(&format!(
             "{},{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2}\n",
-            m.epoch, m.step, m.lr, m.train_loss, m.validation_loss, m.validation_r2, m.validation_rmse, m.windows_per_second, m.seconds
+            m.epoch,
+            m.step,
+            m.lr,
+            m.train_loss,
+            m.validation_loss,
+            m.validation_r2,
+            m.validation_rmse,
+            m.windows_per_second,
+            m.seconds
         ));
     }
     write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
@@ -353,10 +391,8 @@ pub fn train(
                 interrupted = true;
                 break;
             }
-            let ids: Vec<usize> = order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())]
-                .iter()
-                .map(|&k| corpus.train[k])
-                .collect();
+            let ids: Vec<usize> =
+                order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())].iter().map(|&k| corpus.train[k]).collect();
             device.seed(mix(cfg.seed, state.step as u64));
             let (x, y) = corpus.batch(&ids, &device);
             let loss = (model.forward(x) - y).square().mean();
@@ -422,7 +458,13 @@ pub fn train(
 /// Training throughput of architecture `cfg` in windows per second: `steps` optimisation steps (after `warmup`
 /// untimed ones) on random standardised windows and targets, with the loss, optimizer and clipping of `train`.
 /// The benchmark against PyTorch (bench/training.sh) runs this and the same model in PyTorch side by side.
-pub fn synthetic_throughput(cfg: &ModelConfig, batch: usize, steps: usize, warmup: usize, seed: u64) -> Result<f64, TrainError> {
+pub fn synthetic_throughput(
+    cfg: &ModelConfig,
+    batch: usize,
+    steps: usize,
+    warmup: usize,
+    seed: u64,
+) -> Result<f64, TrainError> {
     use burn::tensor::Distribution;
     let device = Device::default().autodiff();
     device.seed(seed);
