@@ -41,20 +41,9 @@ fn file_error(path: &Path, problem: impl ToString) -> CheckpointError {
     CheckpointError::File { file: path.display().to_string(), problem: problem.to_string() }
 }
 
-/// Writes `bytes` to `path` atomically.
+/// Writes `bytes` to `path` atomically (see [`crate::data::cache::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
-    use std::io::Write;
-    let tmp = path.with_extension("tmp");
-    let result = (|| {
-        if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent)?;
-        }
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| file_error(path, e))
+    crate::data::cache::write_atomic(path, bytes).map_err(|e| file_error(path, e))
 }
 
 /// What a checkpoint knows besides its weights.

@@ -33,6 +33,30 @@ impl CachedWindows {
     pub fn count(&self) -> usize {
         self.labels.len()
     }
+
+    /// Appends the windows of the dataset shard `path`; returns its robot and the indices of the new windows, or
+    /// why the shard was skipped (unreadable, not a dataset shard, or another row width than the windows held).
+    pub fn add_shard(
+        &mut self,
+        path: &Path,
+        features: &JacobianFeatures,
+    ) -> Result<(u64, std::ops::Range<usize>), String> {
+        let prep = prepare(path, None).map_err(|e| e.to_string())?;
+        let (Some(y), Some(robot)) = (prep.labels, prep.robot) else {
+            return Err(format!("{}: no labels or robot id (not a dataset shard)", path.display()));
+        };
+        let width = row_width(&prep.model, features);
+        if self.count() > 0 && width != self.width {
+            return Err(format!("{}: {width} values per step, the dataset has {}", path.display(), self.width));
+        }
+        self.width = width;
+        let (count, data) = windows(&prep, &self.spec, features);
+        let start = self.count();
+        self.data.extend(data);
+        self.labels.extend(std::iter::repeat_n(y, count));
+        self.robots.extend(std::iter::repeat_n(robot, count));
+        Ok((robot, start..start + count))
+    }
 }
 
 fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, DataError> {
@@ -102,6 +126,27 @@ fn decode(bytes: &[u8]) -> Option<CachedWindows> {
     })
 }
 
+/// Writes `bytes` to `path` atomically: a temporary file beside it (named after the file and this process, so
+/// concurrent writers never share one), fsync, rename. On failure the temporary file is removed and `path` is
+/// untouched.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+    let written = (|| {
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}
+
 /// Cache file of a run directory for this preprocessing.
 pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, DataError> {
     Ok(dir.join("cache").join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
@@ -129,33 +174,13 @@ pub fn load_or_build(
         CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
     let mut skipped = Vec::new();
     for (k, p) in paths.iter().enumerate() {
-        match prepare(p, None) {
-            Ok(prep) => match (prep.labels, prep.robot) {
-                (Some(y), Some(robot)) => {
-                    out.width = row_width(&prep.model, features);
-                    let (count, data) = windows(&prep, spec, features);
-                    out.data.extend(data);
-                    out.labels.extend(std::iter::repeat_n(y, count));
-                    out.robots.extend(std::iter::repeat_n(robot, count));
-                }
-                _ => skipped.push(format!("{}: no labels or robot id (not a dataset shard)", p.display())),
-            },
-            Err(e) => skipped.push(e.to_string()),
+        if let Err(why) = out.add_shard(p, features) {
+            skipped.push(why);
         }
         progress(k + 1, paths.len());
     }
     let cache_dir = dir.join("cache");
     std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
-    let tmp = cache_dir.join(format!(".{}.tmp", std::process::id()));
-    let written = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(&encode(&out))?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, &path)
-    })();
-    if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io(&path)(e));
-    }
+    write_atomic(&path, &encode(&out)).map_err(io(&path))?;
     Ok((out, skipped))
 }

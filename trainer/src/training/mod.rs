@@ -141,40 +141,16 @@ impl Corpus {
         split_seed: u64,
         validation_fraction: f64,
     ) -> Vec<String> {
-        use crate::data::dataset::{prepare, row_width, windows};
         use crate::data::split::{Split, split_of};
         let mut skipped = Vec::new();
         for p in paths {
-            let prep = match prepare(p, None) {
-                Ok(prep) => prep,
-                Err(e) => {
-                    skipped.push(e.to_string());
-                    continue;
-                }
-            };
-            let (Some(y), Some(robot)) = (prep.labels, prep.robot) else {
-                skipped.push(format!("{}: no labels or robot id (not a dataset shard)", p.display()));
-                continue;
-            };
-            let width = row_width(&prep.model, features);
-            if self.windows.count() > 0 && width != self.windows.width {
-                skipped.push(format!(
-                    "{}: {width} values per step, the dataset has {}",
-                    p.display(),
-                    self.windows.width
-                ));
-                continue;
+            match self.windows.add_shard(p, features) {
+                Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
+                    Split::Train => self.train.extend(new),
+                    Split::Validation => self.validation.extend(new),
+                },
+                Err(why) => skipped.push(why),
             }
-            self.windows.width = width;
-            let (count, data) = windows(&prep, &self.windows.spec, features);
-            let side = match split_of(split_seed, robot, validation_fraction) {
-                Split::Train => &mut self.train,
-                Split::Validation => &mut self.validation,
-            };
-            side.extend(self.windows.count()..self.windows.count() + count);
-            self.windows.data.extend(data);
-            self.windows.labels.extend(std::iter::repeat_n(y, count));
-            self.windows.robots.extend(std::iter::repeat_n(robot, count));
         }
         skipped
     }
@@ -232,6 +208,14 @@ pub fn evaluate(
     let scores = score(&predicted, &truth, &s.label_std);
     let mse = scores.rmse * scores.rmse;
     (scores, predicted, mse)
+}
+
+/// AdamW with the configured weight decay and gradient-norm clipping.
+fn optimizer(cfg: &TrainConfig) -> ModuleOptimizer {
+    AdamWConfig::new()
+        .with_weight_decay(cfg.weight_decay as f32)
+        .with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.clip as f32)))
+        .init()
 }
 
 fn mix(seed: u64, a: u64) -> u64 {
@@ -341,10 +325,7 @@ pub fn train(
     let device = Device::default().autodiff();
     device.seed(cfg.seed);
     let mut model = checkpoint.model.init(&device)?;
-    let adamw = AdamWConfig::new()
-        .with_weight_decay(cfg.weight_decay as f32)
-        .with_grad_clipping(Some(GradientClippingConfig::Norm(cfg.clip as f32)));
-    let mut optim = adamw.init();
+    let mut optim = optimizer(cfg);
     let mut state = TrainState {
         config: cfg.clone(),
         epoch: 0,
@@ -470,10 +451,7 @@ pub fn synthetic_throughput(
     device.seed(seed);
     let mut model = cfg.init(&device)?;
     let defaults = TrainConfig::default();
-    let mut optim = AdamWConfig::new()
-        .with_weight_decay(defaults.weight_decay as f32)
-        .with_grad_clipping(Some(GradientClippingConfig::Norm(defaults.clip as f32)))
-        .init();
+    let mut optim = optimizer(&defaults);
     let x = Tensor::<3>::random([batch, cfg.seq_len, cfg.inputs], Distribution::Normal(0.0, 1.0), &device);
     let y = Tensor::<2>::random([batch, NUM_LABELS], Distribution::Normal(0.0, 1.0), &device);
     let mut started = Instant::now();
