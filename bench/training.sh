@@ -7,12 +7,15 @@
 #   DYNFORGE_BENCH_STEPS  timed steps per preset (default 20; 3 warm-up steps are run first and not timed)
 #   DYNFORGE_BENCH_INPUTS input features per time step F (default 90)
 #   DYNFORGE_BENCH_BATCH  windows per step (default 64)
+#   DYNFORGE_BENCH_MICRO  micro-batches per step on the burn side (default: the trainer's default, 4), each on a
+#                         thread of its own; PyTorch uses 2 intra-op threads
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 steps=${DYNFORGE_BENCH_STEPS:-20}
 inputs=${DYNFORGE_BENCH_INPUTS:-90}
 batch=${DYNFORGE_BENCH_BATCH:-64}
+micro=${DYNFORGE_BENCH_MICRO:+--micro-batches $DYNFORGE_BENCH_MICRO}
 
 venv=$root/.venv-bench
 req=bench/requirements-torch.txt
@@ -37,7 +40,8 @@ bin=${CARGO_TARGET_DIR:-$root/target}/release/dynforge-bench-train
 results=()
 for p in paper fast; do
   echo "== preset $p: burn" >&2
-  burn=$("$bin" --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" | json_line)
+  # shellcheck disable=SC2086 # $micro is empty or two words
+  burn=$("$bin" --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" $micro | json_line)
   echo "$burn" >&2
   echo "== preset $p: torch" >&2
   torch=$("$py" bench/torch_train.py --preset "$p" --inputs "$inputs" --steps "$steps" --batch "$batch" | json_line)

@@ -13,7 +13,7 @@ use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::model::Preset;
 use serde::Serialize;
 
-use crate::train::{ModelArgs, OptimArgs, TrainJob, WindowArgs, run_training};
+use crate::train::{ModelArgs, OptimArgs, Recipe, TrainJob, WindowArgs, run_training};
 
 /// The paper's dataset grid: (sequence length, stride, SSR, its validation R2).
 const DATASET_GRID: [(usize, usize, usize, f64); 16] = [
@@ -79,6 +79,8 @@ struct Row {
     r2: f64,
     rmse: f64,
     train_seconds: f64,
+    /// CPU seconds of the training steps (all threads): the cost side of accuracy per CPU-hour.
+    cpu_seconds: f64,
     windows: usize,
     paper_r2: f64,
     paper_rmse: Option<f64>,
@@ -94,16 +96,16 @@ fn run_one(
     let out = args.out.join(name);
     eprintln!("== {name}");
     let started = Instant::now();
-    let (_, windows) = run_training(&TrainJob {
+    let recipe = Recipe { model, window, optim: args.optim.clone() };
+    let (summary, windows) = run_training(&TrainJob {
         defaults: (Preset::Paper, 5),
         data: &args.data,
         out: &out,
         resume: dynforge_trainer::training::resumable(&out),
         follow: false,
-        model: &model,
-        window: &window,
-        optim: &args.optim,
+        recipe: &recipe,
     })?;
+    let window = &recipe.window;
     let train_seconds = started.elapsed().as_secs_f64();
     let report = evaluate_checkpoint(&out, &windows, &args.data, 0, |_, _, _| {})?;
     std::fs::write(out.join("report.md"), report.markdown()).with_context(|| format!("writing {}", out.display()))?;
@@ -119,6 +121,7 @@ fn run_one(
         r2: report.windows.r2,
         rmse: report.windows.rmse,
         train_seconds,
+        cpu_seconds: summary.history.iter().map(|m| m.cpu_seconds).sum(),
         windows: windows.count(),
         paper_r2: paper.0,
         paper_rmse: paper.1,
@@ -154,19 +157,20 @@ fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
         let _ = writeln!(md, "**Architectures** (fixed dataset configuration)\n");
         let _ = writeln!(
             md,
-            "| Layers | Heads | Embedding | Val R2 | Val RMSE | Train time (s) | Paper Val R2 | Paper Val RMSE |"
+            "| Layers | Heads | Embedding | Val R2 | Val RMSE | Train time (s) | CPU hours | Paper Val R2 | Paper Val RMSE |"
         );
-        let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(md, "|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         for r in arch {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:.4} | {:.4} | {:.0} | {:.4} | {:.4} |",
+                "| {} | {} | {} | {:.4} | {:.4} | {:.0} | {:.3} | {:.4} | {:.4} |",
                 r.layers,
                 r.heads,
                 r.dim,
                 r.r2,
                 r.rmse,
                 r.train_seconds,
+                r.cpu_seconds / 3600.0,
                 r.paper_r2,
                 r.paper_rmse.unwrap_or(f64::NAN)
             );

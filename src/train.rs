@@ -125,6 +125,21 @@ pub struct OptimArgs {
     /// Share of the robots held out for validation.
     #[arg(long, default_value_t = 0.2)]
     pub(crate) validation: f64,
+    /// Parts each batch is split into, each run on a thread of its own (part of the run's definition, not of the
+    /// machine: the same value gives the same model anywhere).
+    #[arg(long, default_value_t = TrainConfig::default().micro_batches)]
+    pub(crate) micro_batches: usize,
+}
+
+/// What defines a training run besides its data and output directory: architecture, windows and optimisation.
+#[derive(Args, Clone)]
+pub struct Recipe {
+    #[command(flatten)]
+    pub(crate) model: ModelArgs,
+    #[command(flatten)]
+    pub(crate) window: WindowArgs,
+    #[command(flatten)]
+    pub(crate) optim: OptimArgs,
 }
 
 #[derive(Args)]
@@ -142,11 +157,7 @@ pub struct TrainArgs {
     #[arg(long)]
     follow: bool,
     #[command(flatten)]
-    model: ModelArgs,
-    #[command(flatten)]
-    window: WindowArgs,
-    #[command(flatten)]
-    optim: OptimArgs,
+    recipe: Recipe,
 }
 
 #[derive(Args)]
@@ -194,11 +205,7 @@ pub struct PipelineArgs {
     #[arg(long, default_value_t = 1)]
     dataset_seed: u64,
     #[command(flatten)]
-    model: ModelArgs,
-    #[command(flatten)]
-    window: WindowArgs,
-    #[command(flatten)]
-    optim: OptimArgs,
+    recipe: Recipe,
 }
 
 pub(crate) fn bar(len: u64, template: &str) -> ProgressBar {
@@ -260,7 +267,7 @@ impl TrainObserver for Bars {
 
     fn epoch(&mut self, m: &EpochMetrics, best: bool) {
         let line = format!(
-            "epoch {:>3}: train loss {:.4}, validation loss {:.4}, R2 {:.4}, RMSE {:.4}, {:.0} windows/s, {:.1} s{}",
+            "epoch {:>3}: train loss {:.4}, validation loss {:.4}, R2 {:.4}, RMSE {:.4}, {:.0} windows/s, {:.1} s ({:.1} CPU s){}",
             m.epoch,
             m.train_loss,
             m.validation_loss,
@@ -268,6 +275,7 @@ impl TrainObserver for Bars {
             m.validation_rmse,
             m.windows_per_second,
             m.seconds,
+            m.cpu_seconds,
             if best { " (best)" } else { "" }
         );
         if self.plain {
@@ -285,9 +293,7 @@ pub(crate) struct TrainJob<'a> {
     pub(crate) out: &'a Path,
     pub(crate) resume: bool,
     pub(crate) follow: bool,
-    pub(crate) model: &'a ModelArgs,
-    pub(crate) window: &'a WindowArgs,
-    pub(crate) optim: &'a OptimArgs,
+    pub(crate) recipe: &'a Recipe,
 }
 
 /// Waits until the dataset has a readable shard and returns its robot (for --follow, started with the generation).
@@ -309,7 +315,7 @@ fn wait_for_robot(data: &Path) -> Result<dynforge_robot::Model> {
 }
 
 pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindows)> {
-    let o = job.optim;
+    let o = &job.recipe.optim;
     if !(o.validation > 0.0 && o.validation < 1.0) {
         bail!("--validation {} must be between 0 and 1", o.validation);
     }
@@ -326,7 +332,7 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
     let previous = if resume { Some(Checkpoint::read(job.out)?) } else { None };
     let spec = match &previous {
         Some(c) => c.window_spec(),
-        None => job.window.spec()?,
+        None => job.recipe.window.spec()?,
     };
     let (split_seed, fraction) =
         previous.as_ref().map_or((o.seed, o.validation), |c| (c.split_seed, c.validation_fraction));
@@ -366,7 +372,7 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
         Some(c) => c,
         None => {
             let standardizer = Standardizer::fit(&corpus.windows, &corpus.train);
-            let model = job.model.config(standardizer.columns.len(), spec.len, job.defaults.0);
+            let model = job.recipe.model.config(standardizer.columns.len(), spec.len, job.defaults.0);
             model.check()?;
             let mut c = Checkpoint::new(model, &spec, joints, &features, &standardizer);
             c.dataset = std::fs::canonicalize(job.data).unwrap_or(job.data.to_path_buf()).display().to_string();
@@ -394,6 +400,7 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
         lr: o.lr,
         patience: o.patience,
         seed: o.seed,
+        micro_batches: o.micro_batches,
         ..TrainConfig::default()
     };
     let mut bars = Bars {
@@ -443,9 +450,7 @@ pub fn train_command(args: TrainArgs) -> Result<()> {
         out: &args.out,
         resume: args.resume,
         follow: args.follow,
-        model: &args.model,
-        window: &args.window,
-        optim: &args.optim,
+        recipe: &args.recipe,
     })?;
     Ok(())
 }
@@ -548,9 +553,7 @@ pub fn pipeline_command(args: PipelineArgs) -> Result<()> {
         out: &model_dir,
         resume,
         follow: false,
-        model: &args.model,
-        window: &args.window,
-        optim: &args.optim,
+        recipe: &args.recipe,
     })?;
     eprintln!("== 3/3 evaluate on the validation robots");
     run_evaluation(&model_dir, &data, Some(windows), 64)?;

@@ -3,7 +3,7 @@
 
 use anyhow::{Context, Result, bail};
 use dynforge_trainer::model::Preset;
-use dynforge_trainer::training::synthetic_throughput;
+use dynforge_trainer::training::{TrainConfig, synthetic_throughput};
 
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -11,6 +11,7 @@ static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 fn main() -> Result<()> {
     let (mut preset, mut inputs, mut steps, mut batch, mut seq_len) =
         ("fast".to_string(), 90usize, 20usize, 64usize, 64usize);
+    let mut micro_batches = TrainConfig::default().micro_batches;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
@@ -20,7 +21,10 @@ fn main() -> Result<()> {
             "--steps" => steps = value()?.parse()?,
             "--batch" => batch = value()?.parse()?,
             "--seq-len" => seq_len = value()?.parse()?,
-            other => bail!("unknown argument {other} (--preset paper|fast --inputs F --steps N --batch B --seq-len L)"),
+            "--micro-batches" => micro_batches = value()?.parse()?,
+            other => bail!(
+                "unknown argument {other} (--preset paper|fast --inputs F --steps N --batch B --seq-len L --micro-batches M)"
+            ),
         }
     }
     let cfg = match preset.as_str() {
@@ -30,10 +34,10 @@ fn main() -> Result<()> {
     }
     .config(inputs, seq_len);
     eprintln!("burn: {} parameters", cfg.parameters());
-    let rate = synthetic_throughput(&cfg, batch, steps, 3, 0)?;
+    let rate = synthetic_throughput(&cfg, batch, micro_batches, steps, 3, 0)?;
     let seconds = (steps * batch) as f64 / rate;
     println!(
-        "{{\"framework\":\"burn\",\"preset\":\"{preset}\",\"windows_per_second\":{rate:.2},\"steps\":{steps},\"seconds\":{seconds:.3}}}"
+        "{{\"framework\":\"burn\",\"preset\":\"{preset}\",\"micro_batches\":{micro_batches},\"windows_per_second\":{rate:.2},\"steps\":{steps},\"seconds\":{seconds:.3}}}"
     );
     Ok(())
 }

@@ -22,6 +22,21 @@ pub const PROFILE: &str = "ros2";
 /// The writer's library string (fixed, so shards stay byte-identical across dependency upgrades).
 pub const LIBRARY: &str = "dynforge-shard/1";
 
+/// The file name of the shard of (robot, trajectory) simulated by `engine`: derived from the job alone, so
+/// re-running a job rewrites the same file, and a reader can tell a shard's robot without opening it.
+pub fn file_name(robot: u64, trajectory: u32, engine: &str) -> String {
+    format!("r{robot:06}-t{trajectory:02}-{engine}.mcap")
+}
+
+/// The robot of a shard named by [`file_name`]; `None` for any other name.
+pub fn robot_of_file_name(name: &str) -> Option<u64> {
+    let rest = name.strip_prefix('r')?.strip_suffix(".mcap")?;
+    let (robot, rest) = rest.split_once("-t")?;
+    let (trajectory, engine) = rest.split_once('-')?;
+    let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+    (digits(robot) && digits(trajectory) && !engine.is_empty()).then(|| robot.parse().ok())?
+}
+
 /// Full `ros2msg` definition of `sensor_msgs/msg/JointState` with its dependencies, as rosbag2 stores it.
 pub const JOINT_STATE_DEFINITION: &str = include_str!("schemas/sensor_msgs_JointState.ros2msg");
 /// `ros2msg` definition of `std_msgs/msg/String`.
@@ -207,6 +222,16 @@ mod tests {
         assert_eq!(&b[68..76], &[0, 0, 0, 0, 2, 0, 0, 0]);
         assert_eq!(&b[84..92], &(-0.5f64).to_le_bytes());
         assert_eq!(decode_joint_state(&b).unwrap(), m);
+    }
+
+    #[test]
+    fn file_names_give_back_their_robot() {
+        assert_eq!(file_name(315, 6, "native"), "r000315-t06-native.mcap");
+        assert_eq!(robot_of_file_name(&file_name(315, 6, "native")), Some(315));
+        assert_eq!(robot_of_file_name(&file_name(1_234_567, 15, "rapier")), Some(1_234_567));
+        for other in ["r000315-t06-native.mcap.tmp", "robot.mcap", "r-t06-native.mcap", "r000315-t06-.mcap", "bag.mcap"] {
+            assert_eq!(robot_of_file_name(other), None, "{other}");
+        }
     }
 
     #[test]

@@ -45,7 +45,7 @@ pub enum JobError {
 
 /// The shard file name of a job: derived from the job alone, so re-running a job rewrites the same file.
 pub fn shard_name(job: &Job, engine: &str) -> String {
-    format!("r{:06}-t{:02}-{engine}.mcap", job.robot, job.trajectory)
+    dynforge_proto::shard::file_name(job.robot, job.trajectory, engine)
 }
 
 /// A generated robot and its waypoint tour (or why none was found), for (seed, robot).

@@ -151,9 +151,16 @@ pub fn evaluate_checkpoint(
     let torque = if torque_recordings > 0 {
         let shards = list_shards(&shard_dir(data)).unwrap_or_default();
         let mut chosen = Vec::new();
+        // Shard names carry the robot: skip training robots' shards without reading them.
+        let named_robot = |p: &std::path::Path| {
+            p.file_name().and_then(|n| n.to_str()).and_then(dynforge_proto::shard::robot_of_file_name)
+        };
         for p in shards {
             if chosen.len() >= torque_recordings {
                 break;
+            }
+            if named_robot(&p).is_some_and(|r| split_of(c.split_seed, r, c.validation_fraction) != Split::Validation) {
+                continue;
             }
             let Ok(prep) = prepare(&p, None) else { continue };
             if prep.robot.is_some_and(|r| split_of(c.split_seed, r, c.validation_fraction) == Split::Validation) {

@@ -15,15 +15,20 @@
 //! link's inertia are read by the same query, and costs only J extra tokens. `patch` > 1 groups consecutive time
 //! steps into one token (as PatchTST does): attention cost falls with the square of the token count.
 
+mod attention;
+pub mod noise;
+
 use burn::module::{Module, Param};
-use burn::nn::attention::{MhaInput, MultiHeadAttention, MultiHeadAttentionConfig};
-use burn::nn::transformer::{TransformerEncoder, TransformerEncoderConfig, TransformerEncoderInput};
 use burn::nn::{
     Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig, PositionalEncoding, PositionalEncodingConfig,
 };
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_robot::rng::Rng;
 use serde::{Deserialize, Serialize};
+
+use attention::{Encoder, MultiHeadAttention};
+use noise::Noise;
 
 /// Outputs per joint token: the joint's friction and its child link's inertial labels.
 const SLOTS: usize = 7;
@@ -97,12 +102,7 @@ impl ModelConfig {
     pub fn init(&self, device: &Device) -> Result<Estimator, ConfigError> {
         self.check()?;
         let d = self.d_model;
-        let encoder = |layers| {
-            TransformerEncoderConfig::new(d, self.d_ff, self.heads, layers)
-                .with_dropout(self.dropout)
-                .with_norm_first(true)
-                .init(device)
-        };
+        let encoder = |layers| Encoder::new(layers, d, self.heads, self.d_ff, device);
         let queries = Initializer::Normal { mean: 0.0, std: 0.02 }.init([1, JOINTS, d], device);
         Ok(Estimator {
             embed: LinearConfig::new(self.inputs * self.patch, d).init(device),
@@ -110,11 +110,12 @@ impl ModelConfig {
             temporal: encoder(self.layers),
             temporal_norm: LayerNormConfig::new(d).init(device),
             joint_queries: queries,
-            joint_attention: MultiHeadAttentionConfig::new(d, self.heads).with_dropout(self.dropout).init(device),
+            joint_attention: MultiHeadAttention::new(d, self.heads, device),
             joint_norm: LayerNormConfig::new(d).init(device),
             joints: encoder(1),
             head: LinearConfig::new(d, SLOTS).init(device),
             patch: self.patch,
+            dropout: self.dropout,
         })
     }
 
@@ -137,14 +138,15 @@ impl ModelConfig {
 pub struct Estimator {
     embed: Linear,
     position: PositionalEncoding,
-    temporal: TransformerEncoder,
+    temporal: Encoder,
     temporal_norm: LayerNorm,
     joint_queries: Param<Tensor<3>>,
     joint_attention: MultiHeadAttention,
     joint_norm: LayerNorm,
-    joints: TransformerEncoder,
+    joints: Encoder,
     head: Linear,
     patch: usize,
+    dropout: f64,
 }
 
 /// Where label `k` sits in the `JOINTS x SLOTS` output grid.
@@ -163,16 +165,25 @@ fn grid_index(k: usize) -> usize {
 }
 
 impl Estimator {
-    /// Standardised labels `[B, 38]` of standardised windows `[B, L, F]`.
+    /// Standardised labels `[B, 38]` of standardised windows `[B, L, F]` (no dropout).
     pub fn forward(&self, x: Tensor<3>) -> Tensor<2> {
+        self.run(x, &mut Noise::off())
+    }
+
+    /// As [`Estimator::forward`], with dropout masks drawn from `rng`: the training pass.
+    pub fn forward_train(&self, x: Tensor<3>, rng: &mut Rng) -> Tensor<2> {
+        self.run(x, &mut Noise::dropout(self.dropout, rng))
+    }
+
+    fn run(&self, x: Tensor<3>, noise: &mut Noise) -> Tensor<2> {
         let [batch, len, width] = x.dims();
         let device = x.device();
         let tokens = x.reshape([batch, len / self.patch, self.patch * width]);
         let h = self.position.forward(self.embed.forward(tokens));
-        let h = self.temporal_norm.forward(self.temporal.forward(TransformerEncoderInput::new(h)));
+        let h = self.temporal_norm.forward(self.temporal.forward(h, noise));
         let q = self.joint_queries.val().repeat_dim(0, batch);
-        let attended = self.joint_attention.forward(MhaInput::new(q.clone(), h.clone(), h)).context;
-        let j = self.joints.forward(TransformerEncoderInput::new(self.joint_norm.forward(q + attended)));
+        let attended = self.joint_attention.forward(q.clone(), h, noise);
+        let j = self.joints.forward(self.joint_norm.forward(q + attended), noise);
         let grid = self.head.forward(j).reshape([batch, JOINTS * SLOTS]);
         let index: Vec<i64> = (0..NUM_LABELS).map(|k| grid_index(k) as i64).collect();
         grid.select(1, Tensor::<1, Int>::from_data(TensorData::new(index, [NUM_LABELS]), &device))
