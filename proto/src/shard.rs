@@ -229,7 +229,8 @@ mod tests {
         assert_eq!(file_name(315, 6, "native"), "r000315-t06-native.mcap");
         assert_eq!(robot_of_file_name(&file_name(315, 6, "native")), Some(315));
         assert_eq!(robot_of_file_name(&file_name(1_234_567, 15, "rapier")), Some(1_234_567));
-        for other in ["r000315-t06-native.mcap.tmp", "robot.mcap", "r-t06-native.mcap", "r000315-t06-.mcap", "bag.mcap"] {
+        for other in ["r000315-t06-native.mcap.tmp", "robot.mcap", "r-t06-native.mcap", "r000315-t06-.mcap", "bag.mcap"]
+        {
             assert_eq!(robot_of_file_name(other), None, "{other}");
         }
     }

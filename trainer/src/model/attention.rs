@@ -79,7 +79,10 @@ impl Encoder {
     pub fn new(layers: usize, d_model: usize, heads: usize, d_ff: usize, device: &Device) -> Self {
         let layer = || EncoderLayer {
             mha: MultiHeadAttention::new(d_model, heads, device),
-            pwff: FeedForward { linear_inner: linear(d_model, d_ff, device), linear_outer: linear(d_ff, d_model, device) },
+            pwff: FeedForward {
+                linear_inner: linear(d_model, d_ff, device),
+                linear_outer: linear(d_ff, d_model, device),
+            },
             norm_1: LayerNormConfig::new(d_model).init(device),
             norm_2: LayerNormConfig::new(d_model).init(device),
         };
