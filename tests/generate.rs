@@ -225,11 +225,32 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
     assert_eq!(std::fs::read(&ledger_path).unwrap(), bytes);
     assert_eq!(shard_hashes(dir.path()), shards);
 
-    // Another configuration on the same directory is refused, naming the difference.
+    // Another configuration on the same directory is refused, naming the difference; fewer robots too.
     let other = tempfile::tempdir().unwrap();
-    assert!(dynforge(&generate_args(other.path(), "1", "1", &["--workers", "1"])).status.success());
-    let o = dynforge(&generate_args(other.path(), "2", "1", &["--workers", "1"]));
-    assert!(!o.status.success() && stderr(&o).contains("robots: requested 2, directory has 1"), "{}", stderr(&o));
+    assert!(dynforge(&generate_args(other.path(), "2", "1", &["--workers", "1"])).status.success());
+    let o = dynforge(&generate_args(other.path(), "2", "2", &["--workers", "1"]));
+    assert!(!o.status.success() && stderr(&o).contains("trajectories: requested 2, directory has 1"), "{}", stderr(&o));
+    let o = dynforge(&generate_args(other.path(), "1", "1", &["--workers", "1"]));
+    assert!(!o.status.success() && stderr(&o).contains("can grow, not shrink"), "{}", stderr(&o));
+}
+
+#[test]
+fn a_grown_dataset_equals_one_generated_at_its_final_size() {
+    // 2 robots, then the same run asked for 3: only robot 2's jobs run, and the result is the 3-robot dataset.
+    let (grown, whole) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    assert!(dynforge(&generate_args(grown.path(), "2", "2", &["--workers", "1"])).status.success());
+    let before = shard_hashes(grown.path());
+    let o = dynforge(&generate_args(grown.path(), "3", "2", &["--workers", "1"]));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("growing the dataset from 2 to 3 robots"));
+    assert!(dynforge(&generate_args(whole.path(), "3", "2", &["--workers", "1"])).status.success());
+    assert_exactly_once(grown.path(), 6);
+    let after = shard_hashes(grown.path());
+    assert_eq!(after, shard_hashes(whole.path()), "same shards as a run of the final size");
+    assert!(
+        before.iter().all(|(name, hash)| after.get(name) == Some(hash)),
+        "the first run's shards are kept as they were"
+    );
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! The run manifest: everything that determines a dataset's content, written once into the output directory. A
 //! later `generate` on the same directory resumes only if its manifest is identical, so a dataset never mixes
-//! shards of two configurations.
+//! shards of two configurations. The one allowed change is more robots: jobs, their ids and partitions are per
+//! robot, so the shards already written are exactly those a run of the larger size would write.
 
 use std::path::Path;
 
@@ -77,21 +78,31 @@ impl Manifest {
         }
     }
 
-    /// Writes the manifest into a new run directory, or checks it against the one already there.
-    pub fn create_or_check(&self, dir: &Path) -> Result<(), ManifestError> {
+    /// Writes the manifest into a new run directory, or checks it against the one already there. Returns the
+    /// directory's previous robot count when this run grows it.
+    pub fn create_or_check(&self, dir: &Path) -> Result<Option<u64>, ManifestError> {
         let path = dir.join(FILE);
         let shown = path.display().to_string();
+        let mut grown = None;
         if let Some(existing) = Manifest::load(dir)? {
-            if existing != *self {
-                return Err(ManifestError::Mismatch { path: shown, differences: self.differences(&existing) });
+            if existing == *self {
+                return Ok(None);
             }
-            return Ok(());
+            if self.robots <= existing.robots || (Manifest { robots: self.robots, ..existing.clone() }) != *self {
+                let mut differences = self.differences(&existing);
+                if self.robots < existing.robots {
+                    differences.push_str(" (a dataset can grow, not shrink)");
+                }
+                return Err(ManifestError::Mismatch { path: shown, differences });
+            }
+            grown = Some(existing.robots);
         }
         let tmp = dir.join(format!(".{FILE}.tmp"));
         let io = |e: std::io::Error| ManifestError::Io { path: shown.clone(), message: e.to_string() };
         std::fs::write(&tmp, self.to_toml()).map_err(io)?;
         std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(io)?;
-        std::fs::rename(&tmp, &path).map_err(io)
+        std::fs::rename(&tmp, &path).map_err(io)?;
+        Ok(grown)
     }
 
     /// Names of the top-level settings that differ, with both values for scalars.
@@ -127,14 +138,20 @@ mod tests {
         manifest(8).create_or_check(dir.path()).unwrap();
         manifest(8).create_or_check(dir.path()).unwrap();
         assert_eq!(Manifest::load(dir.path()).unwrap(), Some(manifest(8)));
+        assert_eq!(manifest(12).create_or_check(dir.path()).unwrap(), Some(8), "more robots grow the run");
+        assert_eq!(Manifest::load(dir.path()).unwrap(), Some(manifest(12)));
         let e = manifest(9).create_or_check(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("robots: requested 9, directory has 8"), "{e}");
-        let mut other = manifest(8);
+        assert!(e.contains("robots: requested 9, directory has 12 (a dataset can grow, not shrink)"), "{e}");
+        let mut bigger_other = manifest(16);
+        bigger_other.seed = 2;
+        let e = bigger_other.create_or_check(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("seed: requested 2"), "{e}");
+        let mut other = manifest(12);
         other.sim.dt = 2e-3;
         let e = other.create_or_check(dir.path()).unwrap_err().to_string();
         assert!(e.contains("sim differs"), "{e}");
         std::fs::write(dir.path().join(FILE), "seed = 'x'").unwrap();
-        let e = manifest(8).create_or_check(dir.path()).unwrap_err().to_string();
+        let e = manifest(12).create_or_check(dir.path()).unwrap_err().to_string();
         assert!(e.contains("manifest.toml: not a dynforge run manifest"), "{e}");
     }
 }

@@ -195,7 +195,9 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     std::fs::create_dir_all(cfg.dir.join("logs")).map_err(dir_err)?;
     let manifest =
         Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
-    manifest.create_or_check(&cfg.dir)?;
+    if let Some(before) = manifest.create_or_check(&cfg.dir)? {
+        observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
+    }
     let (mut ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
     let removed = remove_leftovers(&cfg.dir.join(SHARDS)).map_err(dir_err)?;
     if removed > 0 {
