@@ -13,7 +13,7 @@ use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::model::Preset;
 use serde::Serialize;
 
-use crate::train::{ModelArgs, OptimArgs, Recipe, TrainJob, WindowArgs, run_training};
+use crate::train::{ModelArgs, OptimArgs, Recipe, TrainJob, WindowArgs, interrupted, run_training};
 
 /// The paper's dataset grid: (sequence length, stride, SSR, its validation R2).
 const DATASET_GRID: [(usize, usize, usize, f64); 16] = [
@@ -84,6 +84,47 @@ struct Row {
     windows: usize,
     paper_r2: f64,
     paper_rmse: Option<f64>,
+    /// Why the configuration was not trained (e.g. windows longer than the recordings); its scores are NaN.
+    skipped: Option<String>,
+}
+
+/// Trains and scores one configuration; a configuration this dataset cannot serve (no windows in a split, a
+/// geometry the model refuses) becomes a row saying why, so the rest of the grid still runs. An interruption
+/// stops the sweep.
+fn run_or_skip(
+    args: &SweepArgs,
+    name: &str,
+    window: WindowArgs,
+    model: ModelArgs,
+    paper: (f64, Option<f64>),
+) -> Result<Row> {
+    let (len, stride, ssr) = (window.len, window.stride, window.ssr);
+    let shape = model.config(1, len, Preset::Paper);
+    match run_one(args, name, window, model, paper) {
+        Ok(row) => Ok(row),
+        Err(e) if interrupted() => Err(e),
+        Err(e) => {
+            let reason = format!("{e:#}");
+            eprintln!("warning: {name} not run: {reason}");
+            Ok(Row {
+                name: name.into(),
+                len,
+                stride,
+                ssr,
+                layers: shape.layers,
+                heads: shape.heads,
+                dim: shape.d_model,
+                r2: f64::NAN,
+                rmse: f64::NAN,
+                train_seconds: 0.0,
+                cpu_seconds: 0.0,
+                windows: 0,
+                paper_r2: paper.0,
+                paper_rmse: paper.1,
+                skipped: Some(reason),
+            })
+        }
+    }
 }
 
 fn run_one(
@@ -125,7 +166,16 @@ fn run_one(
         windows: windows.count(),
         paper_r2: paper.0,
         paper_rmse: paper.1,
+        skipped: None,
     })
+}
+
+/// R2 and RMSE cells, or the reason the configuration was not run.
+fn scores(r: &Row) -> String {
+    match &r.skipped {
+        Some(reason) => format!("not run: {} | -", reason.replace('|', "/")),
+        None => format!("{:.4} | {:.4}", r.r2, r.rmse),
+    }
 }
 
 fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
@@ -140,14 +190,13 @@ fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
         for r in dataset {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:.3} | {} | {:.4} | {:.4} | {:.4} |",
+                "| {} | {} | {} | {:.3} | {} | {} | {:.4} |",
                 r.len,
                 r.stride,
                 r.ssr,
                 (r.len * r.stride) as f64 / 1000.0,
                 r.windows,
-                r.r2,
-                r.rmse,
+                scores(r),
                 r.paper_r2
             );
         }
@@ -163,12 +212,11 @@ fn write_tables(out: &Path, dataset: &[Row], arch: &[Row]) -> Result<String> {
         for r in arch {
             let _ = writeln!(
                 md,
-                "| {} | {} | {} | {:.4} | {:.4} | {:.0} | {:.3} | {:.4} | {:.4} |",
+                "| {} | {} | {} | {} | {:.0} | {:.3} | {:.4} | {:.4} |",
                 r.layers,
                 r.heads,
                 r.dim,
-                r.r2,
-                r.rmse,
+                scores(r),
                 r.train_seconds,
                 r.cpu_seconds / 3600.0,
                 r.paper_r2,
@@ -189,7 +237,8 @@ pub fn run(args: SweepArgs) -> Result<()> {
     if args.grid != Grid::Architecture {
         for (len, stride, ssr, paper) in DATASET_GRID {
             let name = format!("dataset-L{len}-s{stride}-r{ssr}");
-            dataset.push(run_one(&args, &name, WindowArgs { len, stride, ssr }, args.model.clone(), (paper, None))?);
+            let window = WindowArgs { len, stride, ssr };
+            dataset.push(run_or_skip(&args, &name, window, args.model.clone(), (paper, None))?);
             write_tables(&args.out, &dataset, &arch)?;
         }
     }
@@ -197,7 +246,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         for (layers, heads, dim, paper, paper_rmse) in ARCHITECTURE_GRID {
             let name = format!("arch-{layers}x{heads}x{dim}");
             let model = ModelArgs { layers: Some(layers), heads: Some(heads), dim: Some(dim), ..args.model.clone() };
-            arch.push(run_one(
+            arch.push(run_or_skip(
                 &args,
                 &name,
                 WindowArgs { len: 64, stride: 64, ssr: 16 },

@@ -25,6 +25,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 /// Set by SIGINT/SIGTERM: training checkpoints and stops at the next step.
 static STOP: AtomicBool = AtomicBool::new(false);
 
+/// Whether Ctrl-C or SIGTERM asked the current command to stop.
+pub(crate) fn interrupted() -> bool {
+    STOP.load(Ordering::Relaxed)
+}
+
 extern "C" fn on_signal(_: libc::c_int) {
     STOP.store(true, Ordering::Relaxed);
 }
@@ -65,7 +70,7 @@ pub struct ModelArgs {
 }
 
 impl ModelArgs {
-    fn config(&self, inputs: usize, seq_len: usize, default: Preset) -> ModelConfig {
+    pub(crate) fn config(&self, inputs: usize, seq_len: usize, default: Preset) -> ModelConfig {
         let preset = match self.preset {
             Some(PresetArg::Paper) => Preset::Paper,
             Some(PresetArg::Fast) => Preset::Fast,

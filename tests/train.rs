@@ -141,3 +141,51 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     let o = dynforge(&["estimate", "--checkpoint", dir.path().to_str().unwrap(), shard.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("not a checkpoint"), "{}", stderr(&o));
 }
+
+#[test]
+fn sweep_runs_both_grids_and_names_the_configurations_a_dataset_cannot_serve() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let out = dir.path().join("sweep");
+    let d = data.to_str().unwrap();
+    ok(dynforge(&["generate", "--out", d, "--robots", "4", "--trajectories", "2", "--workers", "2", "--seed", "5"]));
+    let mut args = vec!["sweep", d, "--out", out.to_str().unwrap()];
+    args.extend(SMALL);
+    let epochs = args.iter().position(|a| *a == "--epochs").unwrap() + 1;
+    args[epochs] = "1";
+    let read =
+        || -> serde_json::Value { serde_json::from_slice(&std::fs::read(out.join("sweep.json")).unwrap()).unwrap() };
+    let printed = ok(dynforge(&args));
+    let first = read();
+    let (dataset, arch) = (first["dataset"].as_array().unwrap(), first["architecture"].as_array().unwrap());
+    assert_eq!((dataset.len(), arch.len()), (16, 4), "every configuration of both grids has a row");
+    let mut ran = 0;
+    for row in dataset.iter().chain(arch) {
+        match row["skipped"].as_str() {
+            // Trajectories last 6-8 s: a window spanning 128 x 64 ms may find none in a split. That is a row
+            // with the reason, not the end of the sweep.
+            Some(reason) => assert!(reason.contains("windows"), "{row}"),
+            None => {
+                ran += 1;
+                assert!(row["windows"].as_u64().unwrap() > 0 && row["rmse"].as_f64().unwrap().is_finite(), "{row}");
+            }
+        }
+    }
+    assert!(ran >= 16, "only {ran} configurations ran");
+    assert_eq!(
+        printed
+            .lines()
+            .filter(|l| l.starts_with("| ") && !l.starts_with("| Seq") && !l.starts_with("| Layers"))
+            .count(),
+        20
+    );
+    // Rerunning resumes: every finished configuration is kept, and the scores are the same.
+    ok(dynforge(&args));
+    let again = read();
+    for grid in ["dataset", "architecture"] {
+        let scores = |v: &serde_json::Value| -> Vec<String> {
+            v[grid].as_array().unwrap().iter().map(|r| format!("{} {} {}", r["name"], r["rmse"], r["r2"])).collect()
+        };
+        assert_eq!(scores(&first), scores(&again), "{grid}");
+    }
+}

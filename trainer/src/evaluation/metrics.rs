@@ -37,7 +37,10 @@ pub fn score(predicted: &[[f64; NUM_LABELS]], truth: &[[f64; NUM_LABELS]], scale
     let n = truth.len().max(1) as f64;
     let targets: Vec<TargetScore> = (0..NUM_LABELS)
         .map(|k| {
-            let mean = truth.iter().map(|t| t[k]).sum::<f64>() / n;
+            // Shifted by the first value, so a constant target has SS_tot exactly 0 (a plain mean of n equal
+            // values can be off by an ulp, and 1 - SS_res / 1e-32 is no score).
+            let origin = truth.first().map_or(0.0, |t| t[k]);
+            let mean = origin + truth.iter().map(|t| t[k] - origin).sum::<f64>() / n;
             let ss_tot: f64 = truth.iter().map(|t| (t[k] - mean).powi(2)).sum();
             let ss_res: f64 = predicted.iter().zip(truth).map(|(p, t)| (p[k] - t[k]).powi(2)).sum();
             let rmse_si = (ss_res / n).sqrt();
@@ -77,6 +80,16 @@ mod tests {
         assert!((s.r2 - 37.8 / 38.0).abs() < 1e-15);
         assert!((s.rmse - (0.0625f64 / 38.0).sqrt()).abs() < 1e-15);
         assert_eq!(s.count, 4);
+    }
+
+    #[test]
+    fn a_constant_target_is_perfect_or_minus_infinity_never_a_huge_number() {
+        // 0.1 summed 7 times and divided by 7 is not 0.1 in f64: a naive mean gives SS_tot ~ 1e-34.
+        let truth: Vec<[f64; NUM_LABELS]> = vec![[0.1; NUM_LABELS]; 7];
+        let mut predicted = truth.clone();
+        assert!(score(&predicted, &truth, &[1.0; NUM_LABELS]).targets.iter().all(|t| t.r2 == 1.0));
+        predicted[0][3] = 0.2;
+        assert_eq!(score(&predicted, &truth, &[1.0; NUM_LABELS]).targets[3].r2, f64::NEG_INFINITY);
     }
 
     #[test]
