@@ -4,7 +4,7 @@
 mod common;
 
 use common::write_shard;
-use dynforge_trainer::data::cache::{cache_path, load_or_build};
+use dynforge_trainer::data::cache::{CachedWindows, cache_path, load_or_build};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_worker::job::Job;
@@ -64,5 +64,41 @@ impl PartialEq for CachedEq<'_> {
     fn eq(&self, o: &Self) -> bool {
         let (a, b) = (self.0, o.0);
         a.spec == b.spec && a.width == b.width && a.data == b.data && a.labels == b.labels && a.robots == b.robots
+    }
+}
+
+#[test]
+fn shards_read_on_all_cores_join_in_path_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut robot = None;
+    for r in [3, 1, 2] {
+        for t in 0..2 {
+            robot = Some(write_shard(&Job { seed: 5, robot: r, trajectory: t }, dir.path()).1);
+        }
+    }
+    let features = JacobianFeatures::new(&robot.unwrap().model);
+    let paths = dynforge_trainer::data::follow::list_shards(dir.path()).unwrap();
+    assert_eq!(paths.len(), 6);
+    let empty = || CachedWindows {
+        spec: WindowSpec::default(),
+        width: 0,
+        data: Vec::new(),
+        labels: Vec::new(),
+        robots: Vec::new(),
+        hit: false,
+    };
+    let mut together = empty();
+    let added = together.add_shards(&paths, &features, |_, _| {});
+    let mut one_by_one = empty();
+    for p in &paths {
+        one_by_one.add_shards(std::slice::from_ref(p), &features, |_, _| {});
+    }
+    assert_eq!(CachedEq(&together), CachedEq(&one_by_one));
+    // Each shard's reported range holds its own robot's windows, and the robots follow the (sorted) file names.
+    let robots: Vec<u64> = added.iter().map(|a| a.as_ref().unwrap().0).collect();
+    assert_eq!(robots, [1, 1, 2, 2, 3, 3]);
+    for a in &added {
+        let (robot, range) = a.as_ref().unwrap();
+        assert!(!range.is_empty() && together.robots[range.clone()].iter().all(|r| r == robot));
     }
 }

@@ -34,29 +34,74 @@ impl CachedWindows {
         self.labels.len()
     }
 
-    /// Appends the windows of the dataset shard `path`; returns its robot and the indices of the new windows, or
-    /// why the shard was skipped (unreadable, not a dataset shard, or another row width than the windows held).
-    pub fn add_shard(
+    /// Appends the windows of the dataset shards `paths`, in their order; for each shard, its robot and the
+    /// indices of its new windows, or why it was skipped (unreadable, not a dataset shard, or another row width
+    /// than the windows held). Shards are read and windowed on all cores, a chunk at a time, and appended in
+    /// order, so the result is the same as reading them one by one. `progress(done, total)` after each chunk.
+    pub fn add_shards(
         &mut self,
-        path: &Path,
+        paths: &[PathBuf],
         features: &JacobianFeatures,
-    ) -> Result<(u64, std::ops::Range<usize>), String> {
-        let prep = prepare(path, None).map_err(|e| e.to_string())?;
-        let (Some(y), Some(robot)) = (prep.labels, prep.robot) else {
-            return Err(format!("{}: no labels or robot id (not a dataset shard)", path.display()));
-        };
-        let width = row_width(&prep.model, features);
-        if self.count() > 0 && width != self.width {
-            return Err(format!("{}: {width} values per step, the dataset has {}", path.display(), self.width));
+        mut progress: impl FnMut(usize, usize),
+    ) -> Vec<Result<(u64, std::ops::Range<usize>), String>> {
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+        let spec = self.spec;
+        let mut out = Vec::with_capacity(paths.len());
+        for chunk in paths.chunks(16 * threads) {
+            let read: Vec<Result<ShardWindows, String>> = std::thread::scope(|s| {
+                let handles: Vec<_> = (0..threads.min(chunk.len()))
+                    .map(|t| {
+                        s.spawn(move || {
+                            chunk.iter().skip(t).step_by(threads).map(|p| read_shard(p, &spec, features)).collect()
+                        })
+                    })
+                    .collect();
+                let mut per_thread: Vec<std::vec::IntoIter<Result<ShardWindows, String>>> = handles
+                    .into_iter()
+                    .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
+                    .map(|v: Vec<_>| v.into_iter())
+                    .collect();
+                // Thread t read items t, t + threads, ...: interleave back into path order.
+                (0..chunk.len()).map(|i| per_thread[i % threads].next().expect("one result per path")).collect()
+            });
+            for (p, r) in chunk.iter().zip(read) {
+                out.push(r.and_then(|w| self.append(p, w)));
+            }
+            progress(out.len(), paths.len());
         }
-        self.width = width;
-        let (count, data) = windows(&prep, &self.spec, features);
-        let start = self.count();
-        self.data.extend(data);
-        self.labels.extend(std::iter::repeat_n(y, count));
-        self.robots.extend(std::iter::repeat_n(robot, count));
-        Ok((robot, start..start + count))
+        out
     }
+
+    fn append(&mut self, path: &Path, w: ShardWindows) -> Result<(u64, std::ops::Range<usize>), String> {
+        if self.count() > 0 && w.width != self.width {
+            return Err(format!("{}: {} values per step, the dataset has {}", path.display(), w.width, self.width));
+        }
+        self.width = w.width;
+        let start = self.count();
+        self.data.extend(w.data);
+        self.labels.extend(std::iter::repeat_n(w.labels, w.count));
+        self.robots.extend(std::iter::repeat_n(w.robot, w.count));
+        Ok((w.robot, start..start + w.count))
+    }
+}
+
+/// One shard's windows, before they join a [`CachedWindows`].
+struct ShardWindows {
+    robot: u64,
+    labels: [f64; NUM_LABELS],
+    width: usize,
+    count: usize,
+    data: Vec<f32>,
+}
+
+fn read_shard(path: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<ShardWindows, String> {
+    let prep = prepare(path, None).map_err(|e| e.to_string())?;
+    let (Some(labels), Some(robot)) = (prep.labels, prep.robot) else {
+        return Err(format!("{}: no labels or robot id (not a dataset shard)", path.display()));
+    };
+    let width = row_width(&prep.model, features);
+    let (count, data) = windows(&prep, spec, features);
+    Ok(ShardWindows { robot, labels, width, count, data })
 }
 
 fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, DataError> {
@@ -172,13 +217,7 @@ pub fn load_or_build(
     let paths = super::follow::list_shards(&shards).map_err(io(&shards))?;
     let mut out =
         CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
-    let mut skipped = Vec::new();
-    for (k, p) in paths.iter().enumerate() {
-        if let Err(why) = out.add_shard(p, features) {
-            skipped.push(why);
-        }
-        progress(k + 1, paths.len());
-    }
+    let skipped = out.add_shards(&paths, features, &mut progress).into_iter().filter_map(Result::err).collect();
     let cache_dir = dir.join("cache");
     std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
     write_atomic(&path, &encode(&out)).map_err(io(&path))?;

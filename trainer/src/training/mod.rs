@@ -161,8 +161,8 @@ impl Corpus {
     ) -> Vec<String> {
         use crate::data::split::{Split, split_of};
         let mut skipped = Vec::new();
-        for p in paths {
-            match self.windows.add_shard(p, features) {
+        for added in self.windows.add_shards(paths, features, |_, _| {}) {
+            match added {
                 Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
                     Split::Train => self.train.extend(new),
                     Split::Validation => self.validation.extend(new),
