@@ -5,7 +5,9 @@
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
-cargo build --release -q -p dynforge -p dynforge-bench
+# The whole workspace, not `-p ...`: a package selection unifies other features and rebuilds burn.
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release
 mkdir -p bench/out
-[ -f bench/out/data8/ledger.tsv ] || ./target/release/dynforge generate --out bench/out/data8 --robots 8 --seed 0 >/dev/null
-./target/release/dynforge-bench-data bench/out/data8 "${1:-64:64:16}"
+[ -f bench/out/data8/ledger.tsv ] || "$bin/dynforge" generate --out bench/out/data8 --robots 8 --seed 0 >/dev/null
+"$bin/dynforge-bench-data" bench/out/data8 "${1:-64:64:16}"

@@ -7,17 +7,19 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 calls=${1:-200000}
 py=$(scripts/venv.sh)
-cargo build --release -q -p dynforge -p dynforge-bench
+# The whole workspace, not `-p ...`: a package selection unifies other features and rebuilds burn.
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release
 out=bench/out
 mkdir -p "$out"
-./target/release/dynforge robot --seed 1 --id 7 --out "$out/df6_s1_r7.urdf" 2>/dev/null
+"$bin"/dynforge robot --seed 1 --id 7 --out "$out/df6_s1_r7.urdf" 2>/dev/null
 ur5=$("$py" robot/tests/reference/pinocchio_dynamics.py --ur5)
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
 printf '%-12s %-6s %12s %12s %8s\n' robot algo dynforge_us pinocchio_us speedup
 json="["
 for urdf in "$out/df6_s1_r7.urdf" "$ur5"; do
   name=$(basename "$urdf" .urdf)
-  ours=$(./target/release/dynforge-bench-dynamics "$urdf" "$calls")
+  ours=$("$bin"/dynforge-bench-dynamics "$urdf" "$calls")
   theirs=$("$py" bench/pinocchio_dynamics.py "$urdf" $((calls / 4)))
   for algo in rnea aba crba; do
     "$py" -c "import json,sys; a=json.loads(sys.argv[1])['${algo}_us']; b=json.loads(sys.argv[2])['${algo}_us']; \

@@ -7,14 +7,16 @@ root=$(cd "$(dirname "$0")/.." && pwd)
 cd "$root"
 robots=${1:-24}
 trajectories=${2:-4}
-cargo build --release -q -p dynforge
+# The whole workspace, not `-p ...`: a package selection unifies other features and rebuilds burn.
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
 declare -A wall
 for w in 1 2; do
   start=$(date +%s.%N)
-  line=$(./target/release/dynforge generate --out "$out/w$w" --robots "$robots" --trajectories "$trajectories" --workers "$w" --seed 9 2>/dev/null)
+  line=$("$bin"/dynforge generate --out "$out/w$w" --robots "$robots" --trajectories "$trajectories" --workers "$w" --seed 9 2>/dev/null)
   end=$(date +%s.%N)
   wall[$w]=$(echo "$end - $start" | awk '{print $1 - $3}')
   echo "workers $w: ${wall[$w]} s wall | $line"

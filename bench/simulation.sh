@@ -9,11 +9,13 @@ cd "$root"
 seconds=${1:-10}
 robots=${2:-100}
 py=$(scripts/venv.sh)
-cargo build --release -q -p dynforge-bench
+# The whole workspace, not `-p ...`: a package selection unifies other features and rebuilds burn.
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release
 mkdir -p bench/out
 urdf=bench/out/swing.urdf
 echo "machine: $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
-{ ./target/release/dynforge-bench-engines "$urdf" "$seconds"; "$py" bench/mujoco_engine.py "$urdf" "$seconds" 2>/dev/null; } > bench/out/simulation.jsonl
+{ "$bin"/dynforge-bench-engines "$urdf" "$seconds"; "$py" bench/mujoco_engine.py "$urdf" "$seconds" 2>/dev/null; } > bench/out/simulation.jsonl
 "$py" - bench/out/simulation.jsonl <<'PY'
 import json, sys
 rows = [json.loads(l) for l in open(sys.argv[1])]
@@ -25,4 +27,4 @@ for r in rows:
 print("energy drift = max |E(t) - E(0)| / peak kinetic energy over the run (>= 1 means the run went unstable)")
 json.dump(rows, open("bench/out/simulation.json", "w"), indent=1)
 PY
-./target/release/dynforge-bench-controller "$robots" 4
+"$bin"/dynforge-bench-controller "$robots" 4

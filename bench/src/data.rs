@@ -1,8 +1,8 @@
 //! Data pipeline throughput: windows per second from the shards (cold: read, decode, resample, Jacobian features,
 //! window) and from the cache, for a `generate` directory.
 //!
-//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. The model consumes ~29 windows/s (burn, paper model,
-//! batch 64, 0.45 steps/s) to ~207 windows/s (libtorch, 3.23 steps/s) on this machine (shared/notes/trainer.md).
+//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. The model consumes 44-56 (`paper`) to 270-440
+//! (`fast`) windows/s in training on this machine (bench/training.sh; README, Benchmarks).
 
 use std::time::Instant;
 
@@ -51,8 +51,6 @@ fn main() -> Result<()> {
         warm.count() as f64 / warm_s,
         warm_s
     );
-    println!(
-        "model consumption on this machine: ~29 windows/s (burn) to ~207 windows/s (libtorch), paper model, batch 64"
-    );
+    println!("model consumption on this machine: 44-56 windows/s (paper preset) to 270-440 windows/s (fast preset)");
     Ok(())
 }
