@@ -67,7 +67,7 @@ pub struct SweepArgs {
     optim: OptimArgs,
 }
 
-#[derive(Serialize)]
+#[derive(Clone, Serialize)]
 struct Row {
     name: String,
     len: usize,
@@ -91,42 +91,6 @@ struct Row {
 /// Trains and scores one configuration; a configuration this dataset cannot serve (no windows in a split, a
 /// geometry the model refuses) becomes a row saying why, so the rest of the grid still runs. An interruption
 /// stops the sweep.
-fn run_or_skip(
-    args: &SweepArgs,
-    name: &str,
-    window: WindowArgs,
-    model: ModelArgs,
-    paper: (f64, Option<f64>),
-) -> Result<Row> {
-    let (len, stride, ssr) = (window.len, window.stride, window.ssr);
-    let shape = model.config(1, len, Preset::Paper);
-    match run_one(args, name, window, model, paper) {
-        Ok(row) => Ok(row),
-        Err(e) if interrupted() => Err(e),
-        Err(e) => {
-            let reason = format!("{e:#}");
-            eprintln!("warning: {name} not run: {reason}");
-            Ok(Row {
-                name: name.into(),
-                len,
-                stride,
-                ssr,
-                layers: shape.layers,
-                heads: shape.heads,
-                dim: shape.d_model,
-                r2: f64::NAN,
-                rmse: f64::NAN,
-                train_seconds: 0.0,
-                cpu_seconds: 0.0,
-                windows: 0,
-                paper_r2: paper.0,
-                paper_rmse: paper.1,
-                skipped: Some(reason),
-            })
-        }
-    }
-}
-
 fn run_one(
     args: &SweepArgs,
     name: &str,
@@ -134,10 +98,39 @@ fn run_one(
     model: ModelArgs,
     paper: (f64, Option<f64>),
 ) -> Result<Row> {
-    let out = args.out.join(name);
+    let shape = model.config(1, window.len, Preset::Paper);
+    let planned = Row {
+        name: name.into(),
+        len: window.len,
+        stride: window.stride,
+        ssr: window.ssr,
+        layers: shape.layers,
+        heads: shape.heads,
+        dim: shape.d_model,
+        r2: f64::NAN,
+        rmse: f64::NAN,
+        train_seconds: 0.0,
+        cpu_seconds: 0.0,
+        windows: 0,
+        paper_r2: paper.0,
+        paper_rmse: paper.1,
+        skipped: None,
+    };
     eprintln!("== {name}");
+    match train_and_score(args, &planned, Recipe { model, window, optim: args.optim.clone() }) {
+        Ok(row) => Ok(row),
+        Err(e) if interrupted() => Err(e),
+        Err(e) => {
+            let reason = format!("{e:#}");
+            eprintln!("warning: {name} not run: {reason}");
+            Ok(Row { skipped: Some(reason), ..planned })
+        }
+    }
+}
+
+fn train_and_score(args: &SweepArgs, planned: &Row, recipe: Recipe) -> Result<Row> {
+    let out = args.out.join(&planned.name);
     let started = Instant::now();
-    let recipe = Recipe { model, window, optim: args.optim.clone() };
     let (summary, windows) = run_training(&TrainJob {
         defaults: (Preset::Paper, 5),
         data: &args.data,
@@ -146,16 +139,11 @@ fn run_one(
         follow: false,
         recipe: &recipe,
     })?;
-    let window = &recipe.window;
     let train_seconds = started.elapsed().as_secs_f64();
     let report = evaluate_checkpoint(&out, &windows, &args.data, 0, |_, _, _| {})?;
     std::fs::write(out.join("report.md"), report.markdown()).with_context(|| format!("writing {}", out.display()))?;
     let c = Checkpoint::read(&out)?;
     Ok(Row {
-        name: name.into(),
-        len: window.len,
-        stride: window.stride,
-        ssr: window.ssr,
         layers: c.model.layers,
         heads: c.model.heads,
         dim: c.model.d_model,
@@ -164,9 +152,7 @@ fn run_one(
         train_seconds,
         cpu_seconds: summary.history.iter().map(|m| m.cpu_seconds).sum(),
         windows: windows.count(),
-        paper_r2: paper.0,
-        paper_rmse: paper.1,
-        skipped: None,
+        ..planned.clone()
     })
 }
 
@@ -238,7 +224,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         for (len, stride, ssr, paper) in DATASET_GRID {
             let name = format!("dataset-L{len}-s{stride}-r{ssr}");
             let window = WindowArgs { len, stride, ssr };
-            dataset.push(run_or_skip(&args, &name, window, args.model.clone(), (paper, None))?);
+            dataset.push(run_one(&args, &name, window, args.model.clone(), (paper, None))?);
             write_tables(&args.out, &dataset, &arch)?;
         }
     }
@@ -246,7 +232,7 @@ pub fn run(args: SweepArgs) -> Result<()> {
         for (layers, heads, dim, paper, paper_rmse) in ARCHITECTURE_GRID {
             let name = format!("arch-{layers}x{heads}x{dim}");
             let model = ModelArgs { layers: Some(layers), heads: Some(heads), dim: Some(dim), ..args.model.clone() };
-            arch.push(run_or_skip(
+            arch.push(run_one(
                 &args,
                 &name,
                 WindowArgs { len: 64, stride: 64, ssr: 16 },
