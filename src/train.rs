@@ -324,6 +324,9 @@ pub(crate) fn run_training(job: &TrainJob) -> Result<(TrainSummary, CachedWindow
     if !(o.validation > 0.0 && o.validation < 1.0) {
         bail!("--validation {} must be between 0 and 1", o.validation);
     }
+    if o.micro_batches == 0 || o.micro_batches > o.batch {
+        bail!("--micro-batches {} must be between 1 and --batch {}", o.micro_batches, o.batch);
+    }
     let resume = job.resume && resumable(job.out);
     if job.resume && !resume {
         eprintln!("note: {} holds no run to resume; starting a new one", job.out.display());

@@ -54,6 +54,15 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     // A second `train` into the same checkpoint is refused unless it resumes.
     let again = dynforge(&args);
     assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
+    // A batch cannot be split into no parts, or more parts than windows; nothing is written.
+    let elsewhere = dir.path().join("elsewhere");
+    for parts in ["0", "17"] {
+        let mut bad = vec!["train", d, "--out", elsewhere.to_str().unwrap(), "--micro-batches", parts];
+        bad.extend(SMALL);
+        let o = dynforge(&bad);
+        assert!(!o.status.success() && stderr(&o).contains(&format!("--micro-batches {parts}")), "{}", stderr(&o));
+        assert!(!elsewhere.exists());
+    }
 
     let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2"]));
     for needle in
