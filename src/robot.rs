@@ -1,7 +1,7 @@
 //! `dynforge robot`: generate or inspect robots.
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -45,30 +45,13 @@ pub fn run(args: RobotArgs) -> Result<()> {
     let text = robot.urdf();
     match &args.out {
         Some(path) => {
-            write_atomic(path, text.as_bytes())?;
+            dynforge_shard::write_atomic(path, text.as_bytes())
+                .with_context(|| format!("writing {}", path.display()))?;
             eprintln!("wrote robot {} of seed {} ({}) to {}", args.id, args.seed, robot.model.name(), path.display());
         }
         None => std::io::stdout().write_all(text.as_bytes()).context("writing to standard output")?,
     }
     Ok(())
-}
-
-/// Writes `bytes` to `path` through a temporary file in the same directory, fsync and rename: the file either
-/// appears whole or not at all.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().with_context(|| format!("{} is not a file path", path.display()))?;
-    let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("writing {}", path.display()))
 }
 
 /// Human-readable summary of a model.

@@ -97,11 +97,8 @@ impl Manifest {
             }
             grown = Some(existing.robots);
         }
-        let tmp = dir.join(format!(".{FILE}.tmp"));
-        let io = |e: std::io::Error| ManifestError::Io { path: shown.clone(), message: e.to_string() };
-        std::fs::write(&tmp, self.to_toml()).map_err(io)?;
-        std::fs::File::open(&tmp).and_then(|f| f.sync_all()).map_err(io)?;
-        std::fs::rename(&tmp, &path).map_err(io)?;
+        dynforge_shard::write_atomic(&path, self.to_toml().as_bytes())
+            .map_err(|e| ManifestError::Io { path: shown, message: e.to_string() })?;
         Ok(grown)
     }
 

@@ -8,4 +8,5 @@ pub mod data;
 pub mod evaluation;
 pub mod inference;
 pub mod model;
+mod parallel;
 pub mod training;

@@ -3,7 +3,6 @@
 //! across trainer runs and rebuilt when any of these changes. Written atomically (temporary file, fsync, rename):
 //! a crash mid-write leaves the previous state; a damaged file fails its checksum and is rebuilt.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::NUM_LABELS;
@@ -48,22 +47,7 @@ impl CachedWindows {
         let spec = self.spec;
         let mut out = Vec::with_capacity(paths.len());
         for chunk in paths.chunks(16 * threads) {
-            let read: Vec<Result<ShardWindows, String>> = std::thread::scope(|s| {
-                let handles: Vec<_> = (0..threads.min(chunk.len()))
-                    .map(|t| {
-                        s.spawn(move || {
-                            chunk.iter().skip(t).step_by(threads).map(|p| read_shard(p, &spec, features)).collect()
-                        })
-                    })
-                    .collect();
-                let mut per_thread: Vec<std::vec::IntoIter<Result<ShardWindows, String>>> = handles
-                    .into_iter()
-                    .map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)))
-                    .map(|v: Vec<_>| v.into_iter())
-                    .collect();
-                // Thread t read items t, t + threads, ...: interleave back into path order.
-                (0..chunk.len()).map(|i| per_thread[i % threads].next().expect("one result per path")).collect()
-            });
+            let read = crate::parallel::map_in_order(chunk, |p| read_shard(p, &spec, features));
             for (p, r) in chunk.iter().zip(read) {
                 out.push(r.and_then(|w| self.append(p, w)));
             }
@@ -171,27 +155,6 @@ fn decode(bytes: &[u8]) -> Option<CachedWindows> {
     })
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file beside it (named after the file and this process, so
-/// concurrent writers never share one), fsync, rename. On failure the temporary file is removed and `path` is
-/// untouched.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-    let written = (|| {
-        if let Some(parent) = path.parent() {
-            std::fs::create_dir_all(parent)?;
-        }
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written
-}
-
 /// Cache file of a run directory for this preprocessing.
 pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, DataError> {
     Ok(dir.join("cache").join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
@@ -220,6 +183,6 @@ pub fn load_or_build(
     let skipped = out.add_shards(&paths, features, &mut progress).into_iter().filter_map(Result::err).collect();
     let cache_dir = dir.join("cache");
     std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
-    write_atomic(&path, &encode(&out)).map_err(io(&path))?;
+    dynforge_shard::write_atomic(&path, &encode(&out)).map_err(io(&path))?;
     Ok((out, skipped))
 }

@@ -208,21 +208,9 @@ pub fn predict(
         let y: Vec<f32> = model.forward(t).into_data().try_to_vec::<f32>().expect("f32 predictions");
         y.chunks_exact(NUM_LABELS).map(|c| <[f32; NUM_LABELS]>::try_from(c).expect("38")).collect::<Vec<_>>()
     };
-    // burn's CPU backend runs a pass on one core: chunks go round-robin to a thread per core. Chunk boundaries
-    // do not depend on the thread count, so neither do the predictions.
+    // Chunk boundaries do not depend on the core count, so neither do the predictions.
     let starts: Vec<usize> = (0..count).step_by(CHUNK).collect();
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(starts.len()).max(1);
-    let mut done: Vec<(usize, Vec<[f32; NUM_LABELS]>)> = std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads)
-            .map(|t| {
-                let (starts, chunk) = (&starts, &chunk);
-                s.spawn(move || starts.iter().skip(t).step_by(threads).map(|&a| (a, chunk(a))).collect::<Vec<_>>())
-            })
-            .collect();
-        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
-    });
-    done.sort_unstable_by_key(|(start, _)| *start);
-    done.into_iter().flat_map(|(_, y)| y).collect()
+    crate::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
 }
 
 /// Scores, SI predictions and mean squared error (standardised) of `model` on windows `ids` of `w`.
