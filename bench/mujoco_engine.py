@@ -1,6 +1,7 @@
-"""MuJoCo side of bench/simulation.sh: steps per second and energy drift of the same torque-free swing of the same
-URDF at 1 ms, with MuJoCo's default semi-implicit Euler and with its RK4. Contacts and joint limits are disabled
-(dynforge's engines have neither); stepping is timed in MuJoCo's native rollout (no Python per step)."""
+"""MuJoCo side of bench/simulation.sh: cost per simulated millisecond and energy drift of the same torque-free swing of
+the same URDFs, with MuJoCo's default semi-implicit Euler and with its RK4, each at 1, 0.5 and 0.25 ms. Contacts and
+joint limits are disabled (dynforge's engines have neither); stepping is timed in MuJoCo's native rollout (no Python
+per step). Usage: mujoco_engine.py SECONDS ID=URDF [ID=URDF ...]"""
 import json
 import sys
 import time
@@ -13,9 +14,9 @@ Q0 = [0.3, 0.9, -0.7, 1.1, 0.4, -0.8]
 QD0 = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5]
 
 
-def run(path: str, seconds: float, integrator: int, name: str) -> dict:
+def run(robot: int, path: str, seconds: float, integrator: int, name: str, h_ms: float) -> dict:
     model = mujoco.MjModel.from_xml_path(path)
-    model.opt.timestep = 1e-3
+    model.opt.timestep = h_ms * 1e-3
     model.opt.integrator = integrator
     model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
@@ -42,14 +43,17 @@ def run(path: str, seconds: float, integrator: int, name: str) -> dict:
         mujoco.mj_step(model, data)
         drift = max(drift, abs(data.energy[0] + data.energy[1] - e0))
         peak = max(peak, data.energy[1])
-    return {"engine": name, "steps": steps, "steps_per_s": round(steps / best), "us_per_step": best * 1e6 / steps,
+    return {"robot": robot, "engine": name, "h_ms": h_ms, "us_per_ms": best * 1e6 / (seconds * 1e3),
             "energy_drift": drift / peak}
 
 
 def main() -> None:
-    path, seconds = sys.argv[1], float(sys.argv[2]) if len(sys.argv) > 2 else 10.0
-    for integrator, name in [(mujoco.mjtIntegrator.mjINT_EULER, "mujoco_euler"), (mujoco.mjtIntegrator.mjINT_RK4, "mujoco_rk4")]:
-        print(json.dumps(run(path, seconds, integrator, name)))
+    seconds = float(sys.argv[1])
+    for arg in sys.argv[2:]:
+        robot, path = arg.split("=", 1)
+        for integrator, name in [(mujoco.mjtIntegrator.mjINT_EULER, "mujoco_euler"), (mujoco.mjtIntegrator.mjINT_RK4, "mujoco_rk4")]:
+            for h_ms in (1.0, 0.5, 0.25):
+                print(json.dumps(run(int(robot), path, seconds, integrator, name, h_ms)))
 
 
 if __name__ == "__main__":

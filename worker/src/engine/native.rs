@@ -30,6 +30,7 @@ pub struct NativeEngine<'m> {
     coulomb: Config6,
     viscous: Config6,
     substeps: usize,
+    min_substeps: usize,
     periods: usize,
 }
 
@@ -48,8 +49,16 @@ impl<'m> NativeEngine<'m> {
             coulomb,
             viscous,
             substeps: 1,
+            min_substeps: 1,
             periods: 0,
         }
+    }
+
+    /// The same engine with at least `n` substeps per period: RK4's error falls as `(dt / n)^4`, which lets a
+    /// benchmark compare engines at equal accuracy rather than at equal step size.
+    pub fn with_min_substeps(mut self, n: usize) -> Self {
+        self.min_substeps = n.max(1);
+        self
     }
 
     /// Substeps per period in use.
@@ -163,7 +172,8 @@ impl Engine for NativeEngine<'_> {
         if self.periods.is_multiple_of(STIFFNESS_REFRESH) {
             let lambda = self.viscous_stiffness();
             // 1.5x margin for the inertia changing before the next estimate.
-            self.substeps = ((1.5 * lambda * self.dt / MAX_LAMBDA_H).ceil() as usize).clamp(1, 64);
+            let stable = (1.5 * lambda * self.dt / MAX_LAMBDA_H).ceil() as usize;
+            self.substeps = stable.clamp(1, 64).max(self.min_substeps);
         }
         self.periods += 1;
         let h = self.dt / self.substeps as f64;
