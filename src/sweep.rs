@@ -140,7 +140,7 @@ fn train_and_score(args: &SweepArgs, planned: &Row, recipe: Recipe) -> Result<Ro
         recipe: &recipe,
     })?;
     let train_seconds = started.elapsed().as_secs_f64();
-    let report = evaluate_checkpoint(&out, &windows, &args.data, 0, |_, _, _| {})?;
+    let report = evaluate_checkpoint(&out, &windows, &args.data, 0, 0, |_, _, _| {})?;
     std::fs::write(out.join("report.md"), report.markdown()).with_context(|| format!("writing {}", out.display()))?;
     let c = Checkpoint::read(&out)?;
     Ok(Row {

@@ -173,8 +173,12 @@ pub struct EvaluateArgs {
     #[arg(long)]
     data: Option<PathBuf>,
     /// Validation recordings to run the torque check on (0: skip it).
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = DEFAULT_CHECKS.torque_recordings)]
     torque_recordings: usize,
+    /// Validation robots to identify by physics (least squares on the regressor, and the hybrid that refines the
+    /// network's estimate with it) from half of their recordings, scored on the other half (0: skip it).
+    #[arg(long, default_value_t = DEFAULT_CHECKS.identify_robots)]
+    identify_robots: usize,
 }
 
 #[derive(Args)]
@@ -463,13 +467,21 @@ pub fn train_command(args: TrainArgs) -> Result<()> {
     Ok(())
 }
 
-fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>, torque: usize) -> Result<Report> {
+/// How many validation recordings and robots the torque and identification checks take.
+struct Checks {
+    torque_recordings: usize,
+    identify_robots: usize,
+}
+
+const DEFAULT_CHECKS: Checks = Checks { torque_recordings: 64, identify_robots: 32 };
+
+fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>, checks: &Checks) -> Result<Report> {
     let windows = match windows {
         Some(w) => w,
         None => load_windows(data, &Checkpoint::read(checkpoint)?.window_spec())?.0,
     };
     let b = bar(0, "{msg} {bar:40} {pos}/{len}");
-    let report = evaluate_checkpoint(checkpoint, &windows, data, torque, |what, k, n| {
+    let report = evaluate_checkpoint(checkpoint, &windows, data, checks.torque_recordings, checks.identify_robots, |what, k, n| {
         b.set_message(what.to_string());
         b.set_length(n as u64);
         b.set_position(k as u64);
@@ -491,7 +503,8 @@ pub fn evaluate_command(args: EvaluateArgs) -> Result<()> {
         Some(d) => d,
         None => PathBuf::from(Checkpoint::read(&args.checkpoint)?.dataset),
     };
-    run_evaluation(&args.checkpoint, &data, None, args.torque_recordings)?;
+    let checks = Checks { torque_recordings: args.torque_recordings, identify_robots: args.identify_robots };
+    run_evaluation(&args.checkpoint, &data, None, &checks)?;
     Ok(())
 }
 
@@ -564,6 +577,6 @@ pub fn pipeline_command(args: PipelineArgs) -> Result<()> {
         recipe: &args.recipe,
     })?;
     eprintln!("== 3/3 evaluate on the validation robots");
-    run_evaluation(&model_dir, &data, Some(windows), 64)?;
+    run_evaluation(&model_dir, &data, Some(windows), &DEFAULT_CHECKS)?;
     Ok(())
 }

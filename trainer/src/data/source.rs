@@ -20,6 +20,11 @@ impl JointTrajectory {
     pub fn joints(&self) -> usize {
         self.names.len()
     }
+
+    /// The samples as identification reads them; `dt` is the grid step of a resampled trajectory.
+    pub fn recording(&self, dt: f64) -> dynforge_identify::Recording<'_> {
+        dynforge_identify::Recording { q: &self.q, qd: &self.qd, tau: &self.tau, dof: self.joints(), dt }
+    }
     pub fn len(&self) -> usize {
         self.t.len()
     }

@@ -1,7 +1,9 @@
 //! Scoring a model the way the paper reports it — R2 and RMSE per target (`metrics`) laid out as its three tables
 //! (`report`) — and past it: scores of per-robot estimates (all of a robot's windows averaged, as a user with
-//! several logs of one robot would) and the torque check (`torque`).
+//! several logs of one robot would), the torque check (`torque`), and physics beside the network
+//! (`identification`).
 
+pub mod identification;
 pub mod metrics;
 pub mod plots;
 pub mod report;
@@ -11,31 +13,28 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use burn::tensor::Device;
+use dynforge_identify::TorqueError;
 use dynforge_proto::NUM_LABELS;
-use dynforge_robot::parameters::with_labels;
+use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::Checkpoint;
 use crate::data::cache::CachedWindows;
-use crate::data::dataset::{GRID_DT, prepare};
+use crate::data::dataset::prepare;
 use crate::data::follow::{list_shards, shard_dir};
 use crate::data::split::{Split, split_of};
 use crate::inference::{InferenceError, Predictor};
 use crate::training::evaluate;
+use identification::IdentificationCheck;
 use metrics::{Scores, score};
-use torque::TorqueResidual;
+use torque::{TorqueRow, normal_equations, physical_parameters};
 
-/// Torque NRMSE of three parameter sets on the validation recordings.
+/// Torque NRMSE on the validation recordings of: the network's estimate (from the recording itself), the true
+/// parameters, the training-mean parameters.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TorqueCheck {
     pub recordings: usize,
-    /// Per joint, then overall, for: the network's estimate, the true parameters, the training-mean parameters.
-    pub estimated: Vec<f64>,
-    pub truth: Vec<f64>,
-    pub mean: Vec<f64>,
-    pub estimated_overall: f64,
-    pub truth_overall: f64,
-    pub mean_overall: f64,
+    pub rows: Vec<TorqueRow>,
     /// Projections applied to make estimates physical, summed over recordings.
     pub projections: usize,
 }
@@ -50,6 +49,7 @@ pub struct Report {
     /// Per validation robot, its windows' predictions averaged.
     pub robots: Scores,
     pub torque: Option<TorqueCheck>,
+    pub identification: Option<IdentificationCheck>,
 }
 
 impl Report {
@@ -70,25 +70,13 @@ impl Report {
                 "\n**Torque check** ({} validation recordings; inverse dynamics vs recorded torque, NRMSE per joint)\n\n",
                 t.recordings
             ));
-            let joints = t.estimated.len();
-            out.push_str(&format!(
-                "| parameters |{} overall |\n|---|{}---:|\n",
-                (0..joints).map(|j| format!(" J{j} |")).collect::<String>(),
-                "---:|".repeat(joints)
-            ));
-            for (name, v, o) in [
-                ("estimated", &t.estimated, t.estimated_overall),
-                ("true", &t.truth, t.truth_overall),
-                ("training mean", &t.mean, t.mean_overall),
-            ] {
-                out.push_str(&format!(
-                    "| {name} |{} {o:.4} |\n",
-                    v.iter().map(|x| format!(" {x:.4} |")).collect::<String>()
-                ));
-            }
+            out.push_str(&torque::table(&t.rows));
             if t.projections > 0 {
                 out.push_str(&format!("\n{} estimated values were projected to physical ones.\n", t.projections));
             }
+        }
+        if let Some(i) = &self.identification {
+            out.push_str(&i.markdown());
         }
         out
     }
@@ -112,12 +100,14 @@ fn per_robot(
 }
 
 /// Evaluates the checkpoint in `dir` on the validation robots of `windows` (the windows of its dataset) and, for
-/// up to `torque_recordings` validation shards of `data`, runs the torque check.
+/// up to `torque_recordings` validation shards of `data`, runs the torque check, and for up to
+/// `identify_robots` validation robots the identification check.
 pub fn evaluate_checkpoint(
     dir: &Path,
     windows: &CachedWindows,
     data: &Path,
     torque_recordings: usize,
+    identify_robots: usize,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<Report, InferenceError> {
     let predictor = Predictor::load(dir)?;
@@ -167,37 +157,43 @@ pub fn evaluate_checkpoint(
                 chosen.push(prep);
             }
         }
-        let (mut est, mut tru, mut mean) =
-            (TorqueResidual::default(), TorqueResidual::default(), TorqueResidual::default());
+        let (mut est, mut tru, mut mean) = (TorqueError::default(), TorqueError::default(), TorqueError::default());
         let mut projections = 0;
-        let mean_labels: [f64; NUM_LABELS] = standardizer.label_mean;
         for (k, prep) in chosen.iter().enumerate() {
             progress("torque check", k, chosen.len());
             let e = predictor.estimate_prepared(dir, prep)?;
-            let bad = |e: dynforge_robot::ModelError| InferenceError::Recording {
-                file: prep.path.display().to_string(),
-                problem: e.to_string(),
-            };
-            let (m_est, notes) = with_labels(&prep.model, &e.labels).map_err(bad)?;
-            let (m_mean, _) = with_labels(&prep.model, &mean_labels).map_err(bad)?;
-            projections += notes.len();
-            est.add(&m_est, &prep.trajectory, GRID_DT);
-            tru.add(&prep.model, &prep.trajectory, GRID_DT);
-            mean.add(&m_mean, &prep.trajectory, GRID_DT);
+            let ne = normal_equations(prep)?;
+            let (pi_est, notes) = physical_parameters(prep, &prep.model, &e.labels)?;
+            projections += notes;
+            est.add(&ne, &pi_est);
+            tru.add(&ne, &dynamic_parameters(&prep.model));
+            mean.add(&ne, &physical_parameters(prep, &prep.model, &standardizer.label_mean)?.0);
         }
         progress("torque check", chosen.len(), chosen.len());
         (!chosen.is_empty()).then(|| TorqueCheck {
             recordings: chosen.len(),
-            estimated: est.per_joint(),
-            truth: tru.per_joint(),
-            mean: mean.per_joint(),
-            estimated_overall: est.overall(),
-            truth_overall: tru.overall(),
-            mean_overall: mean.overall(),
+            rows: vec![
+                TorqueRow::new("estimated", &est),
+                TorqueRow::new("true", &tru),
+                TorqueRow::new("training mean", &mean),
+            ],
             projections,
         })
     } else {
         None
     };
-    Ok(Report { checkpoint: dir.display().to_string(), epoch: c.epoch, windows: scores, robots: robot_scores, torque })
+    let network_error: [f64; NUM_LABELS] = std::array::from_fn(|k| robot_scores.targets[k].rmse_si);
+    let identification = if identify_robots > 0 {
+        identification::check(&predictor, dir, data, identify_robots, &network_error, &mut progress)?
+    } else {
+        None
+    };
+    Ok(Report {
+        checkpoint: dir.display().to_string(),
+        epoch: c.epoch,
+        windows: scores,
+        robots: robot_scores,
+        torque,
+        identification,
+    })
 }

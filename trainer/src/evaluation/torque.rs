@@ -1,119 +1,98 @@
-//! The torque check: how well a set of parameters predicts a recording's torques by inverse dynamics.
+//! The torque check: how well parameter sets predict recordings' torques by inverse dynamics.
 //!
-//! For every sample, `tau_hat = RNEA(q, qd, qdd) + mu_c sign(qd) + mu_v qd` with `qdd` by central differences of
-//! `qd` on the 1 kHz grid, against the recorded (applied) torque. Samples where a joint is (nearly) at rest are left
-//! out for that joint: there Coulomb friction is static and takes any value in `[-mu_c, mu_c]`, so no parameter set
-//! predicts it. NRMSE per joint = RMSE / standard deviation of the recorded torque over the same samples; the
-//! overall value is the mean over joints.
+//! For every sample, `tau_hat = Y(q, qd, qdd) pi` (RNEA plus friction) with `qdd` by central differences of `qd` on
+//! the 1 kHz grid, against the recorded (applied) torque; a joint's samples at rest are left out (static Coulomb
+//! friction takes any value in `[-mu_c, mu_c]`). NRMSE per joint = RMSE / standard deviation of the recorded torque
+//! over the same samples; the overall value is the mean over joints. The sums live in `dynforge_identify`'s normal
+//! equations, so one pass over a recording scores any number of parameter sets.
 
-use dynforge_robot::{Data, Model, friction_torque, rnea};
+use dynforge_identify::{NormalEquations, TorqueError};
+use dynforge_proto::NUM_LABELS;
+use dynforge_robot::Model;
+use dynforge_robot::parameters::{dynamic_parameters, with_labels};
+use serde::{Deserialize, Serialize};
 
-use crate::data::source::JointTrajectory;
+use crate::data::dataset::{GRID_DT, Prepared};
+use crate::inference::InferenceError;
 
-/// Joint speed [rad/s] under which a sample is treated as static for that joint.
-pub const REST_SPEED: f64 = 1e-2;
-
-/// Running sums of torque residuals per joint, over any number of recordings.
-#[derive(Debug, Clone, Default)]
-pub struct TorqueResidual {
-    se: Vec<f64>,
-    sum: Vec<f64>,
-    sum2: Vec<f64>,
-    n: Vec<usize>,
+/// Held-out torque NRMSE of one parameter set.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TorqueRow {
+    pub parameters: String,
+    /// Per joint (NaN for a joint that never moved).
+    pub per_joint: Vec<f64>,
+    pub overall: f64,
 }
 
-impl TorqueResidual {
-    /// Adds the residuals of `model`'s inverse dynamics on `t` (joints in model order, uniform grid `dt`).
-    pub fn add(&mut self, model: &Model, t: &JointTrajectory, dt: f64) {
-        let n = model.dof();
-        if self.se.len() != n {
-            *self = TorqueResidual { se: vec![0.0; n], sum: vec![0.0; n], sum2: vec![0.0; n], n: vec![0; n] };
-        }
-        let mut data = Data::new(model);
-        let (mut qdd, mut fr) = (vec![0.0; n], vec![0.0; n]);
-        for i in 1..t.len().saturating_sub(1) {
-            let row = |v: &[f64], k: usize| v[k * n..(k + 1) * n].to_vec();
-            let (q, qd) = (row(&t.q, i), row(&t.qd, i));
-            let (before, after) = (row(&t.qd, i - 1), row(&t.qd, i + 1));
-            for j in 0..n {
-                qdd[j] = (after[j] - before[j]) / (2.0 * dt);
-            }
-            friction_torque(model, &qd, &mut fr);
-            let tau = rnea(model, &mut data, &q, &qd, &qdd);
-            for j in 0..n {
-                if qd[j].abs() < REST_SPEED {
-                    continue;
-                }
-                let recorded = t.tau[i * n + j];
-                self.se[j] += (tau[j] + fr[j] - recorded).powi(2);
-                self.sum[j] += recorded;
-                self.sum2[j] += recorded * recorded;
-                self.n[j] += 1;
-            }
-        }
+impl TorqueRow {
+    pub(crate) fn new(parameters: &str, e: &TorqueError) -> Self {
+        TorqueRow { parameters: parameters.into(), per_joint: e.per_joint(), overall: e.overall() }
     }
+}
 
-    /// NRMSE per joint (NaN for a joint that never moved).
-    pub fn per_joint(&self) -> Vec<f64> {
-        (0..self.se.len())
-            .map(|j| {
-                let n = self.n[j] as f64;
-                let var = self.sum2[j] / n - (self.sum[j] / n).powi(2);
-                (self.se[j] / n).sqrt() / var.max(0.0).sqrt()
-            })
-            .collect()
+/// Markdown table of torque rows.
+pub(crate) fn table(rows: &[TorqueRow]) -> String {
+    let joints = rows.first().map_or(0, |r| r.per_joint.len());
+    let mut out = format!(
+        "| parameters |{} overall |\n|---|{}---:|\n",
+        (0..joints).map(|j| format!(" J{j} |")).collect::<String>(),
+        "---:|".repeat(joints)
+    );
+    for r in rows {
+        out.push_str(&format!(
+            "| {} |{} {:.4} |\n",
+            r.parameters,
+            r.per_joint.iter().map(|x| format!(" {x:.4} |")).collect::<String>(),
+            r.overall
+        ));
     }
+    out
+}
 
-    /// Mean NRMSE over the joints that moved.
-    pub fn overall(&self) -> f64 {
-        let v: Vec<f64> = self.per_joint().into_iter().filter(|x| x.is_finite()).collect();
-        v.iter().sum::<f64>() / v.len().max(1) as f64
-    }
+/// The normal equations of a prepared recording (joints in model order, on the 1 kHz grid).
+pub(crate) fn normal_equations(p: &Prepared) -> Result<NormalEquations, InferenceError> {
+    NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT))
+        .map_err(|e| InferenceError::Recording { file: p.path.display().to_string(), problem: e.to_string() })
+}
+
+/// The parameter vector of `labels` put on `model` (projected to a physical robot, as the written URDF is), and the
+/// number of projections that took.
+pub(crate) fn physical_parameters(
+    p: &Prepared,
+    model: &Model,
+    labels: &[f64; NUM_LABELS],
+) -> Result<(Vec<f64>, usize), InferenceError> {
+    let (m, notes) = with_labels(model, labels)
+        .map_err(|e| InferenceError::Recording { file: p.path.display().to_string(), problem: e.to_string() })?;
+    Ok((dynamic_parameters(&m), notes.len()))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::data::source::JointTrajectory;
     use dynforge_robot::generator::{GeneratorConfig, generate};
-    use dynforge_robot::parameters::{labels, with_labels};
-
-    /// Torques of `model` along q_j(t) = a_j sin(w_j t + p_j), from the exact acceleration.
-    fn trajectory(model: &Model, dt: f64, samples: usize) -> JointTrajectory {
-        let n = model.dof();
-        let mut t = JointTrajectory { names: vec![], t: vec![], q: vec![], qd: vec![], tau: vec![] };
-        let mut data = Data::new(model);
-        let mut fr = vec![0.0; n];
-        for i in 0..samples {
-            let time = i as f64 * dt;
-            let (a, w, p) =
-                (|j: usize| 0.4 + 0.1 * j as f64, |j: usize| 1.0 + 0.3 * j as f64, |j: usize| 0.7 * j as f64);
-            let q: Vec<f64> = (0..n).map(|j| a(j) * (w(j) * time + p(j)).sin()).collect();
-            let qd: Vec<f64> = (0..n).map(|j| a(j) * w(j) * (w(j) * time + p(j)).cos()).collect();
-            let qdd: Vec<f64> = (0..n).map(|j| -a(j) * w(j) * w(j) * (w(j) * time + p(j)).sin()).collect();
-            friction_torque(model, &qd, &mut fr);
-            let tau: Vec<f64> = rnea(model, &mut data, &q, &qd, &qdd).iter().zip(&fr).map(|(a, b)| a + b).collect();
-            t.t.push(time);
-            t.q.extend(q);
-            t.qd.extend(qd);
-            t.tau.extend(tau);
-        }
-        t
-    }
+    use dynforge_robot::parameters::labels;
 
     #[test]
     fn true_parameters_predict_the_torques_to_the_finite_difference_error_and_wrong_ones_do_not() {
         let cfg = GeneratorConfig::default();
         let truth = generate(&cfg, 1, 0).unwrap().model;
         let other = generate(&cfg, 1, 1).unwrap().model;
-        let (dt, samples) = (1e-3, 4000);
-        let t = trajectory(&truth, dt, samples);
-        let mut exact = TorqueResidual::default();
-        exact.add(&truth, &t, dt);
+        let (q, qd, tau) = dynforge_testkit::sinusoid_recording(&truth, 0, GRID_DT, 4000);
+        let names = truth.joints().iter().map(|j| j.name.clone()).collect();
+        let t = (0..4000).map(|i| i as f64 * GRID_DT).collect();
+        let p = Prepared {
+            path: "sinusoids".into(),
+            model: truth.clone(),
+            trajectory: JointTrajectory { names, t, q, qd, tau },
+            labels: None,
+            robot: None,
+        };
+        let ne = normal_equations(&p).unwrap();
         // Central differences of qd err by w^2 dt^2 / 6 relative to qdd (w <= 2.5 rad/s): below 1e-6.
-        assert!(exact.overall() < 1e-5, "{:?}", exact.per_joint());
-        let (wrong, _) = with_labels(&truth, &labels(&other).unwrap()).unwrap();
-        let mut off = TorqueResidual::default();
-        off.add(&wrong, &t, dt);
-        assert!(off.overall() > 1e-2, "{:?}", off.per_joint());
+        assert!(ne.mean_nrmse(&dynamic_parameters(&truth)) < 1e-5, "{:?}", ne.nrmse(&dynamic_parameters(&truth)));
+        let (wrong, _) = physical_parameters(&p, &truth, &labels(&other).unwrap()).unwrap();
+        assert!(ne.mean_nrmse(&wrong) > 1e-2, "{:?}", ne.nrmse(&wrong));
     }
 }

@@ -1,0 +1,39 @@
+//! Classical identification of a manipulator's dynamic parameters from its joint recordings, beside the network.
+//!
+//! Rigid-body dynamics with joint friction are linear in the parameters: `tau = Y(q, qd, qdd) pi` (the robot
+//! crate's `regressor`). Every moving sample of a recording contributes its rows of `Y` to one set of normal
+//! equations ([`NormalEquations`]), from which
+//! - [`least_squares`] gives the classical estimate: the minimum-norm `pi` over the identifiable (base) parameter
+//!   combinations, with their count (rank) and the residual noise level. It predicts torques but cannot name the
+//!   paper's individual labels, most of which are not identifiable from joint torques alone;
+//! - [`refine`] gives the labels: the maximum-a-posteriori estimate under a Gaussian prior on the 38 labels (the
+//!   network's estimate and its error, or the training distribution), so that the data pin down every identifiable
+//!   combination and the prior decides only what the data cannot see.
+//!
+//! The same normal equations score any parameter set's torque prediction on a recording ([`NormalEquations::nrmse`])
+//! without re-running the dynamics per parameter set.
+
+mod labels;
+mod normal;
+mod refine;
+mod samples;
+mod solve;
+
+pub use labels::label_parameters;
+pub use normal::{NormalEquations, TorqueError};
+pub use refine::{Prior, Refined, refine};
+pub use samples::{REST_SPEED, Recording};
+pub use solve::{LeastSquares, least_squares};
+
+/// Why an identification failed.
+#[derive(Debug, thiserror::Error)]
+pub enum IdentifyError {
+    #[error("the recording has no moving samples to identify from (every joint slower than {REST_SPEED} rad/s)")]
+    NoData,
+    #[error("{0} joints given where {1} are needed")]
+    Dof(usize, usize),
+    #[error("the eigen-decomposition of the normal equations failed")]
+    Decomposition,
+    #[error("the prior's standard deviation of label {0} is {1}, not a positive number")]
+    Prior(&'static str, f64),
+}

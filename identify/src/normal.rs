@@ -1,0 +1,181 @@
+//! Normal equations of the regressor, per joint, accumulated over recordings.
+
+use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI, num_params};
+use dynforge_robot::{Data, Model, regressor};
+use nalgebra::{DMatrix, DVector};
+
+use crate::IdentifyError;
+use crate::samples::{REST_SPEED, Recording};
+
+/// `sum y y^T`, `sum y tau`, `sum tau^2`, `sum tau` and the count over the moving samples of one joint, where `y`
+/// is that joint's row of the regressor. Kept per joint so that a parameter set's torque error can be normalised by
+/// each joint's own torque spread (the torque check), and summed for identification.
+///
+/// Sums of squares lose precision to cancellation only at `1e-16` of the torque's mean square: far below the
+/// residuals of interest (the true parameters leave ~2e-4 of the torque's spread on simulated data).
+#[derive(Debug, Clone)]
+pub struct NormalEquations {
+    dof: usize,
+    a: Vec<DMatrix<f64>>,
+    b: Vec<DVector<f64>>,
+    c: Vec<f64>,
+    sum: Vec<f64>,
+    n: Vec<usize>,
+}
+
+impl NormalEquations {
+    /// Empty sums for a `dof`-joint robot.
+    pub fn new(dof: usize) -> Self {
+        let p = num_params(dof);
+        NormalEquations {
+            dof,
+            a: vec![DMatrix::zeros(p, p); dof],
+            b: vec![DVector::zeros(p); dof],
+            c: vec![0.0; dof],
+            sum: vec![0.0; dof],
+            n: vec![0; dof],
+        }
+    }
+
+    /// Adds the moving samples of `rec`, a recording of `model`'s joints (only its kinematics are used).
+    pub fn add(&mut self, model: &Model, rec: &Recording) -> Result<(), IdentifyError> {
+        let n = self.dof;
+        if model.dof() != n || rec.dof != n {
+            return Err(IdentifyError::Dof(rec.dof.min(model.dof()), n));
+        }
+        let mut data = Data::new(model);
+        // Row j of Y is zero outside the inertial parameters of links j.. and joint j's friction pair.
+        let support: Vec<Vec<usize>> =
+            (0..n).map(|j| (NI * j..NI * n).chain([NI * n + NF * j, NI * n + NF * j + 1]).collect()).collect();
+        rec.for_each(|q, qd, qdd, tau| {
+            let y = regressor(model, &mut data, q, qd, qdd);
+            for j in 0..n {
+                if qd[j].abs() < REST_SPEED {
+                    continue;
+                }
+                let (a, b) = (&mut self.a[j], &mut self.b[j]);
+                for &r in &support[j] {
+                    let yr = y[(j, r)];
+                    b[r] += yr * tau[j];
+                    for &c in &support[j] {
+                        a[(r, c)] += yr * y[(j, c)];
+                    }
+                }
+                self.c[j] += tau[j] * tau[j];
+                self.sum[j] += tau[j];
+                self.n[j] += 1;
+            }
+        });
+        Ok(())
+    }
+
+    /// The normal equations of `rec` alone.
+    pub fn of(model: &Model, rec: &Recording) -> Result<Self, IdentifyError> {
+        let mut ne = NormalEquations::new(model.dof());
+        ne.add(model, rec)?;
+        Ok(ne)
+    }
+
+    /// Adds another set of sums (of the same robot).
+    pub fn merge(&mut self, other: &NormalEquations) {
+        for j in 0..self.dof.min(other.dof) {
+            self.a[j] += &other.a[j];
+            self.b[j] += &other.b[j];
+            self.c[j] += other.c[j];
+            self.sum[j] += other.sum[j];
+            self.n[j] += other.n[j];
+        }
+    }
+
+    pub fn dof(&self) -> usize {
+        self.dof
+    }
+
+    /// Torque rows (moving joint samples) summed.
+    pub fn rows(&self) -> usize {
+        self.n.iter().sum()
+    }
+
+    /// `(Y^T Y, Y^T tau, tau^T tau)` over all joints.
+    pub(crate) fn gram(&self) -> (DMatrix<f64>, DVector<f64>, f64) {
+        let p = num_params(self.dof);
+        let mut a = DMatrix::zeros(p, p);
+        let mut b = DVector::zeros(p);
+        for j in 0..self.dof {
+            a += &self.a[j];
+            b += &self.b[j];
+        }
+        (a, b, self.c.iter().sum())
+    }
+
+    /// Residual sum of squares of `pi`'s torques on joint `j` (0 when it never moved).
+    fn rss_joint(&self, j: usize, pi: &DVector<f64>) -> f64 {
+        let quad = pi.dot(&(&self.a[j] * pi));
+        (quad - 2.0 * self.b[j].dot(pi) + self.c[j]).max(0.0)
+    }
+
+    /// Residual sum of squares of the torques predicted by `pi` (layout of `dynforge_proto::params`).
+    pub fn rss(&self, pi: &[f64]) -> f64 {
+        let pi = DVector::from_column_slice(pi);
+        (0..self.dof).map(|j| self.rss_joint(j, &pi)).sum()
+    }
+
+    /// Per joint: RMS torque error of `pi` over the standard deviation of the recorded torque (NaN for a joint
+    /// that never moved).
+    pub fn nrmse(&self, pi: &[f64]) -> Vec<f64> {
+        let mut e = TorqueError::default();
+        e.add(self, pi);
+        e.per_joint()
+    }
+
+    /// Mean of [`Self::nrmse`] over the joints that moved.
+    pub fn mean_nrmse(&self, pi: &[f64]) -> f64 {
+        let mut e = TorqueError::default();
+        e.add(self, pi);
+        e.overall()
+    }
+}
+
+/// Torque errors summed over recordings that each have their own parameter set (e.g. one estimate per log):
+/// NRMSE per joint = RMS error over the standard deviation of the recorded torque, both over all recordings' moving
+/// samples of that joint.
+#[derive(Debug, Clone, Default)]
+pub struct TorqueError {
+    rss: Vec<f64>,
+    c: Vec<f64>,
+    sum: Vec<f64>,
+    n: Vec<usize>,
+}
+
+impl TorqueError {
+    /// Adds the errors of `pi` on the recording(s) summed in `ne`.
+    pub fn add(&mut self, ne: &NormalEquations, pi: &[f64]) {
+        if self.rss.len() != ne.dof {
+            *self = TorqueError { rss: vec![0.0; ne.dof], c: vec![0.0; ne.dof], sum: vec![0.0; ne.dof], n: vec![0; ne.dof] };
+        }
+        let pi = DVector::from_column_slice(pi);
+        for j in 0..ne.dof {
+            self.rss[j] += ne.rss_joint(j, &pi);
+            self.c[j] += ne.c[j];
+            self.sum[j] += ne.sum[j];
+            self.n[j] += ne.n[j];
+        }
+    }
+
+    /// NRMSE per joint (NaN for a joint that never moved).
+    pub fn per_joint(&self) -> Vec<f64> {
+        (0..self.rss.len())
+            .map(|j| {
+                let n = self.n[j] as f64;
+                let var = self.c[j] / n - (self.sum[j] / n).powi(2);
+                (self.rss[j] / n).sqrt() / var.max(0.0).sqrt()
+            })
+            .collect()
+    }
+
+    /// Mean NRMSE over the joints that moved.
+    pub fn overall(&self) -> f64 {
+        let v: Vec<f64> = self.per_joint().into_iter().filter(|x| x.is_finite()).collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    }
+}

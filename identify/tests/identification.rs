@@ -1,0 +1,96 @@
+//! Identification on motions with exactly known torques (inverse dynamics of analytic joint trajectories).
+
+use dynforge_identify::{NormalEquations, Prior, Recording, least_squares, label_parameters, refine};
+use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_robot::Model;
+use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::parameters::{dynamic_parameters, labels};
+use dynforge_testkit::sinusoid_recording;
+
+const DT: f64 = 1e-3;
+
+fn normal_equations(model: &Model, variant: u32, samples: usize) -> NormalEquations {
+    let (q, qd, tau) = sinusoid_recording(model, variant, DT, samples);
+    NormalEquations::of(model, &Recording { q: &q, qd: &qd, tau: &tau, dof: 6, dt: DT }).unwrap()
+}
+
+fn robot(id: u64) -> Model {
+    generate(&GeneratorConfig::default(), 5, id).unwrap().model
+}
+
+/// Central differences of qd err by `w^2 dt^2 / 6` of qdd (w <= 3.6 rad/s here: 2.2e-6), which bounds the torque
+/// error of the true parameters relative to the torque spread well below 1e-4.
+const DIFFERENCE_BOUND: f64 = 1e-4;
+
+#[test]
+fn least_squares_predicts_the_torques_of_another_motion() {
+    let truth = robot(0);
+    let fit = normal_equations(&truth, 0, 4000);
+    let held_out = normal_equations(&truth, 1, 4000);
+    assert!(held_out.mean_nrmse(&dynamic_parameters(&truth)) < DIFFERENCE_BOUND);
+    let ls = least_squares(&fit).unwrap();
+    // Some combinations are never identifiable from joint torques (e.g. link 1's parameters other than Izz).
+    assert!(ls.rank < 72 && ls.rank >= 12, "rank {}", ls.rank);
+    let nrmse = held_out.mean_nrmse(&ls.pi);
+    assert!(nrmse < DIFFERENCE_BOUND, "held-out NRMSE {nrmse:.3e} ({:?})", held_out.nrmse(&ls.pi));
+    // The fit's own residual is the finite-difference error too.
+    assert!(fit.mean_nrmse(&ls.pi) <= fit.mean_nrmse(&dynamic_parameters(&truth)) * (1.0 + 1e-6));
+}
+
+#[test]
+fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
+    let truth = robot(1);
+    let wrong = labels(&robot(2)).unwrap();
+    let true_labels = labels(&truth).unwrap();
+    let std: [f64; NUM_LABELS] = std::array::from_fn(|k| (true_labels[k] - wrong[k]).abs() * 2.0 + 1e-3);
+    let prior = Prior { mean: wrong, std };
+    let fit = normal_equations(&truth, 0, 4000);
+    let held_out = normal_equations(&truth, 1, 4000);
+    let ls = least_squares(&fit).unwrap();
+    let refined = refine(&fit, &truth, &prior, ls.sigma).unwrap();
+    // The prior's torques are far off; the refined labels predict another motion to within the noise floor
+    // (NOISE_FLOOR = 1e-3 of the torque RMS) that the refinement assumes.
+    let before = held_out.mean_nrmse(&label_parameters(&truth, &wrong));
+    let after = held_out.mean_nrmse(&label_parameters(&truth, &refined.labels));
+    assert!(before > 1e-2, "the prior should be wrong: {before}");
+    assert!(after < 1e-3, "refined NRMSE {after:.3e} (prior {before:.3e}), {} iterations", refined.iterations);
+    // Friction columns (sign(qd), qd of one joint) are independent of everything else: the data determine them.
+    // Their posterior std is ~sigma / sqrt(rows) ~ 1e-3 * RMS(tau) / 60, so the prior moves them by ~(that / std)^2
+    // of its offset: far below 1 % of the prior std.
+    for (k, l) in LABELS.iter().enumerate() {
+        if matches!(l.kind, LabelKind::Coulomb | LabelKind::Viscous) {
+            let err = (refined.labels[k] - true_labels[k]).abs();
+            assert!(err < 1e-2 * std[k], "{}: {} vs {} (prior {})", l.name, refined.labels[k], true_labels[k], wrong[k]);
+        }
+    }
+}
+
+#[test]
+fn the_truth_as_prior_is_a_fixed_point() {
+    let truth = robot(3);
+    let y = labels(&truth).unwrap();
+    let prior = Prior { mean: y, std: std::array::from_fn(|k| 0.1 * y[k].abs().max(1e-3)) };
+    let fit = normal_equations(&truth, 0, 2000);
+    let refined = refine(&fit, &truth, &prior, 0.0).unwrap();
+    for (k, l) in LABELS.iter().enumerate() {
+        // The data's optimum is the truth up to the finite-difference error, which moves labels by far less than
+        // 1e-3 of their prior std.
+        assert!((refined.labels[k] - y[k]).abs() < 1e-3 * prior.std[k], "{}: {} vs {}", l.name, refined.labels[k], y[k]);
+    }
+}
+
+#[test]
+fn no_motion_and_bad_priors_are_errors() {
+    let truth = robot(4);
+    let (q, qd, tau) = sinusoid_recording(&truth, 0, DT, 100);
+    let still = vec![0.0; qd.len()];
+    let empty = NormalEquations::of(&truth, &Recording { q: &q, qd: &still, tau: &tau, dof: 6, dt: DT }).unwrap();
+    assert!(least_squares(&empty).is_err());
+    let fit = NormalEquations::of(&truth, &Recording { q: &q, qd: &qd, tau: &tau, dof: 6, dt: DT }).unwrap();
+    let y = labels(&truth).unwrap();
+    let mut std = [1.0; NUM_LABELS];
+    std[7] = 0.0;
+    let err = refine(&fit, &truth, &Prior { mean: y, std }, 0.0).unwrap_err().to_string();
+    assert!(err.contains(LABELS[7].name), "{err}");
+    assert!(NormalEquations::of(&truth, &Recording { q: &q, qd: &qd, tau: &tau, dof: 5, dt: DT }).is_err());
+}
