@@ -197,6 +197,11 @@ pub struct EstimateArgs {
     /// Print the estimate as JSON instead of a table.
     #[arg(long)]
     json: bool,
+    /// Keep the network's estimate as it is. By default it is refined by physics: the labels that best explain the
+    /// log's torques (least squares on the regressor), with the network's estimate as prior for what the torques
+    /// cannot tell apart.
+    #[arg(long)]
+    no_refine: bool,
 }
 
 #[derive(Args)]
@@ -481,11 +486,18 @@ fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>
         None => load_windows(data, &Checkpoint::read(checkpoint)?.window_spec())?.0,
     };
     let b = bar(0, "{msg} {bar:40} {pos}/{len}");
-    let report = evaluate_checkpoint(checkpoint, &windows, data, checks.torque_recordings, checks.identify_robots, |what, k, n| {
-        b.set_message(what.to_string());
-        b.set_length(n as u64);
-        b.set_position(k as u64);
-    })?;
+    let report = evaluate_checkpoint(
+        checkpoint,
+        &windows,
+        data,
+        checks.torque_recordings,
+        checks.identify_robots,
+        |what, k, n| {
+            b.set_message(what.to_string());
+            b.set_length(n as u64);
+            b.set_position(k as u64);
+        },
+    )?;
     b.finish_and_clear();
     let md = report.markdown();
     std::fs::write(checkpoint.join("report.md"), &md)
@@ -515,7 +527,9 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
         None => None,
     };
     let (prepared, e) = predictor.estimate(&args.checkpoint, &args.log, base.as_ref())?;
-    let (model, notes) = dynforge_robot::parameters::with_labels(&prepared.model, &e.labels)
+    let refinement = if args.no_refine { None } else { Some(predictor.refine(&args.checkpoint, &prepared, &e)?) };
+    let values = refinement.as_ref().map_or(e.labels, |r| r.labels);
+    let (model, notes) = dynforge_robot::parameters::with_labels(&prepared.model, &values)
         .with_context(|| format!("applying the estimate to the robot of {}", args.log.display()))?;
     let out = args.out.unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
     std::fs::write(&out, urdf::to_string(&model, &urdf::BaseLink::default()))
@@ -525,23 +539,41 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
             .iter()
             .enumerate()
             .map(|(k, l)| {
-                (
-                    l.name.to_string(),
-                    serde_json::json!({"value": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()}),
-                )
+                let v = serde_json::json!({
+                    "value": values[k], "network": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()
+                });
+                (l.name.to_string(), v)
             })
             .collect();
-        println!(
-            "{}",
-            serde_json::to_string_pretty(
-                &serde_json::json!({"windows": e.windows, "parameters": map, "projections": notes, "urdf": out})
-            )?
-        );
+        let refined = refinement.as_ref().map(|r| {
+            serde_json::json!({
+                "identifiable": r.identifiable,
+                "prior_from_validation": r.prior_from_validation,
+                "torque_nrmse_network": r.nrmse_network,
+                "torque_nrmse_refined": r.nrmse_refined,
+            })
+        });
+        let summary = serde_json::json!({
+            "windows": e.windows, "parameters": map, "refinement": refined, "projections": notes, "urdf": out
+        });
+        println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
         println!("{}: {} windows", args.log.display(), e.windows);
-        println!("{:<12} {:>12} {:>12}  unit", "parameter", "estimate", "spread");
+        println!("{:<12} {:>12} {:>12} {:>12}  unit", "parameter", "estimate", "network", "spread");
         for (k, l) in LABELS.iter().enumerate() {
-            println!("{:<12} {:>12.6} {:>12.6}  {}", l.name, e.labels[k], e.spread[k], l.kind.unit());
+            let u = l.kind.unit();
+            println!("{:<12} {:>12.6} {:>12.6} {:>12.6}  {u}", l.name, values[k], e.labels[k], e.spread[k]);
+        }
+        match &refinement {
+            Some(r) => println!(
+                "refined by physics ({} identifiable parameter combinations; prior spread from {}): torque NRMSE on \
+                 this log {:.4} (network alone {:.4})",
+                r.identifiable,
+                if r.prior_from_validation { "the checkpoint's report.json" } else { "the training labels" },
+                r.nrmse_refined,
+                r.nrmse_network
+            ),
+            None => println!("network estimate only (--no-refine)"),
         }
         for n in &notes {
             println!("projected: {n}");

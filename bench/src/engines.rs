@@ -21,7 +21,14 @@ const QD0: [f64; 6] = [0.5, -0.3, 0.8, -1.0, 2.0, 1.5];
 const DT: f64 = 1e-3;
 
 #[allow(clippy::needless_lifetimes)] // the engines borrow the model for 'm
-fn measure<'m>(robot: u64, name: &str, h_ms: f64, model: &'m Model, steps: usize, make: &dyn Fn() -> Box<dyn Engine + 'm>) {
+fn measure<'m>(
+    robot: u64,
+    name: &str,
+    h_ms: f64,
+    model: &'m Model,
+    steps: usize,
+    make: &dyn Fn() -> Box<dyn Engine + 'm>,
+) {
     let mut engine = make();
     engine.reset(&Q0, &QD0);
     let start = Instant::now();

@@ -151,7 +151,12 @@ impl TorqueError {
     /// Adds the errors of `pi` on the recording(s) summed in `ne`.
     pub fn add(&mut self, ne: &NormalEquations, pi: &[f64]) {
         if self.rss.len() != ne.dof {
-            *self = TorqueError { rss: vec![0.0; ne.dof], c: vec![0.0; ne.dof], sum: vec![0.0; ne.dof], n: vec![0; ne.dof] };
+            *self = TorqueError {
+                rss: vec![0.0; ne.dof],
+                c: vec![0.0; ne.dof],
+                sum: vec![0.0; ne.dof],
+                n: vec![0; ne.dof],
+            };
         }
         let pi = DVector::from_column_slice(pi);
         for j in 0..ne.dof {

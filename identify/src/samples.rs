@@ -33,8 +33,8 @@ impl Recording<'_> {
         let mut qdd = vec![0.0; n];
         for i in 1..self.len().saturating_sub(1) {
             let r = i * n..(i + 1) * n;
-            for j in 0..n {
-                qdd[j] = (self.qd[r.start + n + j] - self.qd[r.start - n + j]) / (2.0 * self.dt);
+            for (j, a) in qdd.iter_mut().enumerate() {
+                *a = (self.qd[r.start + n + j] - self.qd[r.start - n + j]) / (2.0 * self.dt);
             }
             f(&self.q[r.clone()], &self.qd[r.clone()], &qdd, &self.tau[r]);
         }

@@ -2,6 +2,7 @@
 
 use dynforge_proto::params::num_params;
 use faer::{Mat, Side};
+
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
@@ -25,18 +26,29 @@ pub struct LeastSquares {
     pub sigma: f64,
 }
 
-/// `x = A^+ b` over the eigen-directions of `A` (symmetric, positive semi-definite) above `tolerance` of the
-/// largest eigenvalue, and how many there were.
-pub(crate) fn pseudo_solve(a: &DMatrix<f64>, b: &DVector<f64>, tolerance: f64) -> Result<(DVector<f64>, usize), IdentifyError> {
+/// Eigenvectors (columns) and eigenvalues of the symmetric `a`, by faer.
+pub(crate) fn eigen(a: &DMatrix<f64>) -> Result<(DMatrix<f64>, Vec<f64>), IdentifyError> {
     let p = a.nrows();
     let m = Mat::<f64>::from_fn(p, p, |i, j| a[(i, j)]);
     let eig = m.self_adjoint_eigen(Side::Lower).map_err(|_| IdentifyError::Decomposition)?;
     let (u, lam) = (eig.U(), eig.S().column_vector());
-    let largest = (0..p).map(|k| lam[k]).fold(0.0f64, f64::max);
+    Ok((DMatrix::from_fn(p, p, |i, j| u[(i, j)]), (0..p).map(|k| lam[k]).collect()))
+}
+
+/// `x = A^+ b` over the eigen-directions of `A` (symmetric, positive semi-definite) above `tolerance` of the
+/// largest eigenvalue, and how many there were.
+pub(crate) fn pseudo_solve(
+    a: &DMatrix<f64>,
+    b: &DVector<f64>,
+    tolerance: f64,
+) -> Result<(DVector<f64>, usize), IdentifyError> {
+    let p = a.nrows();
+    let (u, lam) = eigen(a)?;
+    let largest = lam.iter().fold(0.0f64, |a, &b| a.max(b));
     let mut x = DVector::zeros(p);
     let mut rank = 0;
     for k in 0..p {
-        if !(lam[k] > tolerance * largest) {
+        if lam[k].partial_cmp(&(tolerance * largest)) != Some(std::cmp::Ordering::Greater) {
             continue;
         }
         rank += 1;

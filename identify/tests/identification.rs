@@ -1,6 +1,6 @@
 //! Identification on motions with exactly known torques (inverse dynamics of analytic joint trajectories).
 
-use dynforge_identify::{NormalEquations, Prior, Recording, least_squares, label_parameters, refine};
+use dynforge_identify::{NormalEquations, Prior, Recording, label_parameters, least_squares, refine};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_robot::Model;
 use dynforge_robot::generator::{GeneratorConfig, generate};
@@ -43,7 +43,7 @@ fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
     let wrong = labels(&robot(2)).unwrap();
     let true_labels = labels(&truth).unwrap();
     let std: [f64; NUM_LABELS] = std::array::from_fn(|k| (true_labels[k] - wrong[k]).abs() * 2.0 + 1e-3);
-    let prior = Prior { mean: wrong, std };
+    let prior = Prior::new(wrong, &std).unwrap();
     let fit = normal_equations(&truth, 0, 4000);
     let held_out = normal_equations(&truth, 1, 4000);
     let ls = least_squares(&fit).unwrap();
@@ -60,7 +60,14 @@ fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
     for (k, l) in LABELS.iter().enumerate() {
         if matches!(l.kind, LabelKind::Coulomb | LabelKind::Viscous) {
             let err = (refined.labels[k] - true_labels[k]).abs();
-            assert!(err < 1e-2 * std[k], "{}: {} vs {} (prior {})", l.name, refined.labels[k], true_labels[k], wrong[k]);
+            assert!(
+                err < 1e-2 * std[k],
+                "{}: {} vs {} (prior {})",
+                l.name,
+                refined.labels[k],
+                true_labels[k],
+                wrong[k]
+            );
         }
     }
 }
@@ -69,13 +76,19 @@ fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
 fn the_truth_as_prior_is_a_fixed_point() {
     let truth = robot(3);
     let y = labels(&truth).unwrap();
-    let prior = Prior { mean: y, std: std::array::from_fn(|k| 0.1 * y[k].abs().max(1e-3)) };
+    let prior = Prior::new(y, &std::array::from_fn(|k| 0.1 * y[k].abs().max(1e-3))).unwrap();
     let fit = normal_equations(&truth, 0, 2000);
     let refined = refine(&fit, &truth, &prior, 0.0).unwrap();
     for (k, l) in LABELS.iter().enumerate() {
         // The data's optimum is the truth up to the finite-difference error, which moves labels by far less than
         // 1e-3 of their prior std.
-        assert!((refined.labels[k] - y[k]).abs() < 1e-3 * prior.std[k], "{}: {} vs {}", l.name, refined.labels[k], y[k]);
+        assert!(
+            (refined.labels[k] - y[k]).abs() < 1e-3 * prior.std()[k],
+            "{}: {} vs {}",
+            l.name,
+            refined.labels[k],
+            y[k]
+        );
     }
 }
 
@@ -86,11 +99,14 @@ fn no_motion_and_bad_priors_are_errors() {
     let still = vec![0.0; qd.len()];
     let empty = NormalEquations::of(&truth, &Recording { q: &q, qd: &still, tau: &tau, dof: 6, dt: DT }).unwrap();
     assert!(least_squares(&empty).is_err());
-    let fit = NormalEquations::of(&truth, &Recording { q: &q, qd: &qd, tau: &tau, dof: 6, dt: DT }).unwrap();
+    let moving = NormalEquations::of(&truth, &Recording { q: &q, qd: &qd, tau: &tau, dof: 6, dt: DT }).unwrap();
+    assert!(least_squares(&moving).is_ok());
     let y = labels(&truth).unwrap();
     let mut std = [1.0; NUM_LABELS];
     std[7] = 0.0;
-    let err = refine(&fit, &truth, &Prior { mean: y, std }, 0.0).unwrap_err().to_string();
+    let err = Prior::new(y, &std).unwrap_err().to_string();
     assert!(err.contains(LABELS[7].name), "{err}");
+    std[7] = f64::NAN;
+    assert!(Prior::new(y, &std).is_err());
     assert!(NormalEquations::of(&truth, &Recording { q: &q, qd: &qd, tau: &tau, dof: 5, dt: DT }).is_err());
 }

@@ -87,24 +87,23 @@ struct RobotResult {
     params: Vec<Vec<f64>>,
 }
 
-const ROWS: [&str; 6] = [
-    "true",
-    "training mean",
-    "network",
-    "least squares (base parameters)",
-    "physics, training prior",
-    "hybrid",
-];
+/// Validation robots outside the identified ones needed to measure the network's error per label.
+const MIN_OTHER_ROBOTS: usize = 8;
+
+const ROWS: [&str; 6] =
+    ["true", "training mean", "network", "least squares (base parameters)", "physics, training prior", "hybrid"];
 
 /// Runs the check on up to `max_robots` validation robots of `data` that have at least two readable recordings
-/// long enough for a window. `network_error` is the network's per-robot RMSE per label [SI] (the hybrid's prior
-/// spread).
+/// long enough for a window. `training` is the training robots' label distribution (the physics prior);
+/// `errors` holds the network's per-robot estimate minus truth for validation robots: the hybrid's prior spread is
+/// their RMS over the robots *not* identified here, so no robot informs its own prior.
 pub(crate) fn check(
     predictor: &Predictor,
     dir: &Path,
     data: &Path,
     max_robots: usize,
-    network_error: &[f64; NUM_LABELS],
+    training: &Prior,
+    errors: &BTreeMap<u64, [f64; NUM_LABELS]>,
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<Option<IdentificationCheck>, InferenceError> {
     let c = &predictor.checkpoint;
@@ -115,15 +114,20 @@ pub(crate) fn check(
             by_robot.entry(r).or_default().push(p);
         }
     }
-    let robots: Vec<Vec<PathBuf>> = by_robot.into_values().filter(|v| v.len() >= 2).take(max_robots).collect();
+    let (ids, robots): (Vec<u64>, Vec<Vec<PathBuf>>) =
+        by_robot.into_iter().filter(|(_, v)| v.len() >= 2).take(max_robots).unzip();
     let s = c.standardizer();
-    let training = Prior { mean: s.label_mean, std: s.label_std };
-    let floor: [f64; NUM_LABELS] = std::array::from_fn(|k| 1e-6 * s.label_std[k]);
+    let others: Vec<&[f64; NUM_LABELS]> = errors.iter().filter(|(r, _)| !ids.contains(r)).map(|(_, e)| e).collect();
+    // With too few other robots to measure the network's error, its spread is taken as the training spread's.
+    let network_std: [f64; NUM_LABELS] = std::array::from_fn(|k| {
+        let rms = (others.iter().map(|e| e[k] * e[k]).sum::<f64>() / others.len().max(1) as f64).sqrt();
+        if others.len() >= MIN_OTHER_ROBOTS { rms.max(1e-6 * s.label_std[k]) } else { training.std()[k] }
+    });
     let chunk = 2 * std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut results = Vec::new();
     for (k, group) in robots.chunks(chunk).enumerate() {
         progress("identification", k * chunk, robots.len());
-        let done = map_in_order(group, |paths| one_robot(predictor, dir, paths, &training, network_error, &floor));
+        let done = map_in_order(group, |paths| one_robot(predictor, dir, paths, training, &network_std));
         for r in done {
             results.extend(r?);
         }
@@ -164,8 +168,7 @@ fn one_robot(
     dir: &Path,
     paths: &[PathBuf],
     training: &Prior,
-    network_error: &[f64; NUM_LABELS],
-    floor: &[f64; NUM_LABELS],
+    network_std: &[f64; NUM_LABELS],
 ) -> Result<Option<RobotResult>, InferenceError> {
     let preps: Vec<_> = paths.iter().filter_map(|p| prepare(p, None).ok()).filter(|p| p.labels.is_some()).collect();
     if preps.len() < 2 {
@@ -181,8 +184,8 @@ fn one_robot(
     for p in fit {
         fit_ne.merge(&normal_equations(p)?);
         if let Ok(e) = predictor.estimate_prepared(dir, p) {
-            for k in 0..NUM_LABELS {
-                sum[k] += e.labels[k] * e.windows as f64;
+            for (s, y) in sum.iter_mut().zip(e.labels) {
+                *s += y * e.windows as f64;
             }
             windows += e.windows;
         }
@@ -201,7 +204,7 @@ fn one_robot(
     };
     let ls = least_squares(&fit_ne).map_err(bad)?;
     let physics = refine(&fit_ne, template, training, ls.sigma).map_err(bad)?.labels;
-    let network_prior = Prior { mean: network, std: std::array::from_fn(|k| network_error[k].max(floor[k])) };
+    let network_prior = Prior::new(network, network_std).map_err(bad)?;
     let hybrid = refine(&fit_ne, template, &network_prior, ls.sigma).map_err(bad)?.labels;
     let mut params = vec![dynamic_parameters(template)];
     for labels in [&training.mean, &network] {

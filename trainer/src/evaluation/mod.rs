@@ -82,12 +82,12 @@ impl Report {
     }
 }
 
-/// Averages predictions per robot.
+/// Averages predictions per robot: robot ids, predictions, truths (in robot order).
 fn per_robot(
     robots: &[u64],
     predicted: &[[f64; NUM_LABELS]],
     truth: &[[f64; NUM_LABELS]],
-) -> (Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>) {
+) -> (Vec<u64>, Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>) {
     let mut acc: BTreeMap<u64, ([f64; NUM_LABELS], usize, [f64; NUM_LABELS])> = BTreeMap::new();
     for ((r, p), t) in robots.iter().zip(predicted).zip(truth) {
         let e = acc.entry(*r).or_insert(([0.0; NUM_LABELS], 0, *t));
@@ -96,7 +96,22 @@ fn per_robot(
         }
         e.1 += 1;
     }
-    acc.values().map(|(s, n, t)| (std::array::from_fn(|k| s[k] / *n as f64), *t)).unzip()
+    let ids = acc.keys().copied().collect();
+    let (p, t) = acc.values().map(|(s, n, t)| (std::array::from_fn(|k| s[k] / *n as f64), *t)).unzip();
+    (ids, p, t)
+}
+
+/// Mean and standard deviation of the labels over the training robots of `windows` (one sample per robot: the
+/// distribution the generator drew them from).
+fn training_distribution(windows: &CachedWindows, c: &Checkpoint) -> ([f64; NUM_LABELS], [f64; NUM_LABELS]) {
+    let robots: BTreeMap<u64, [f64; NUM_LABELS]> = (0..windows.count())
+        .filter(|&i| split_of(c.split_seed, windows.robots[i], c.validation_fraction) == Split::Train)
+        .map(|i| (windows.robots[i], windows.labels[i]))
+        .collect();
+    let n = robots.len().max(1) as f64;
+    let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| robots.values().map(|y| y[k]).sum::<f64>() / n);
+    let std = std::array::from_fn(|k| (robots.values().map(|y| (y[k] - mean[k]).powi(2)).sum::<f64>() / n).sqrt());
+    (mean, std)
 }
 
 /// Evaluates the checkpoint in `dir` on the validation robots of `windows` (the windows of its dataset) and, for
@@ -121,7 +136,7 @@ pub fn evaluate_checkpoint(
     progress("windows", 1, 1);
     let truth: Vec<[f64; NUM_LABELS]> = validation.iter().map(|&i| windows.labels[i]).collect();
     let robots: Vec<u64> = validation.iter().map(|&i| windows.robots[i]).collect();
-    let (rp, rt) = per_robot(&robots, &predicted, &truth);
+    let (ids, rp, rt) = per_robot(&robots, &predicted, &truth);
     let robot_scores = score(&rp, &rt, &standardizer.label_std);
     let plot_error = |e: String| InferenceError::Recording { file: dir.display().to_string(), problem: e };
     plots::predicted_vs_true(
@@ -182,9 +197,15 @@ pub fn evaluate_checkpoint(
     } else {
         None
     };
-    let network_error: [f64; NUM_LABELS] = std::array::from_fn(|k| robot_scores.targets[k].rmse_si);
     let identification = if identify_robots > 0 {
-        identification::check(&predictor, dir, data, identify_robots, &network_error, &mut progress)?
+        let errors: BTreeMap<u64, [f64; NUM_LABELS]> =
+            ids.iter().zip(rp.iter().zip(&rt)).map(|(&r, (p, t))| (r, std::array::from_fn(|k| p[k] - t[k]))).collect();
+        let (mean, std) = training_distribution(windows, c);
+        let training = dynforge_identify::Prior::new(mean, &std).map_err(|e| InferenceError::Recording {
+            file: data.display().to_string(),
+            problem: format!("the training robots' labels: {e}"),
+        })?;
+        identification::check(&predictor, dir, data, identify_robots, &training, &errors, &mut progress)?
     } else {
         None
     };

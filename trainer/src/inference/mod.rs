@@ -4,12 +4,14 @@
 use std::path::Path;
 
 use burn::tensor::Device;
+use dynforge_identify::{NormalEquations, Prior, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
 use dynforge_robot::Model;
+use dynforge_robot::parameters::{dynamic_parameters, with_labels};
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::data::cache::CachedWindows;
-use crate::data::dataset::{DataError, Prepared, prepare, row_width, windows};
+use crate::data::dataset::{DataError, GRID_DT, Prepared, prepare, row_width, windows};
 use crate::data::features::JacobianFeatures;
 use crate::model::Estimator;
 use crate::training::predict;
@@ -32,6 +34,29 @@ pub struct Estimate {
     /// Standard deviation over windows [SI] (0 with one window).
     pub spread: [f64; NUM_LABELS],
     pub windows: usize,
+}
+
+/// An estimate refined by physics.
+#[derive(Debug, Clone)]
+pub struct Refinement {
+    pub labels: [f64; NUM_LABELS],
+    /// Identifiable parameter combinations in the recording.
+    pub identifiable: usize,
+    /// Whether the prior's spread came from an evaluation (`report.json`) rather than the training labels.
+    pub prior_from_validation: bool,
+    /// Torque NRMSE on the recording itself, of the network's estimate and of the refined labels (each as the
+    /// physical robot the URDF gets).
+    pub nrmse_network: f64,
+    pub nrmse_refined: f64,
+}
+
+/// The network's per-robot validation RMSE per label [SI], from the `report.json` that `evaluate` leaves in `dir`.
+fn validation_rmse(dir: &Path) -> Option<[f64; NUM_LABELS]> {
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
+    let targets = report.get("robots")?.get("targets")?.as_array()?;
+    let values: Vec<f64> = targets.iter().filter_map(|t| t.get("rmse_si")?.as_f64()).collect();
+    let rmse: [f64; NUM_LABELS] = values.try_into().ok()?;
+    rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
 }
 
 /// A loaded checkpoint, ready to estimate recordings.
@@ -92,6 +117,32 @@ impl Predictor {
         let spread =
             std::array::from_fn(|k| (per_window.iter().map(|y| (y[k] - labels[k]).powi(2)).sum::<f64>() / n).sqrt());
         Ok(Estimate { labels, spread, windows: count })
+    }
+
+    /// The network's estimate `e` of the recording `p` refined by physics: the labels that best explain the
+    /// recording's torques (least squares on the regressor) with the estimate as prior. The prior's spread per label
+    /// is the network's per-robot validation RMSE from `report.json` in the checkpoint directory (written by
+    /// `evaluate`), or the training labels' spread when there is none.
+    pub fn refine(&self, dir: &Path, p: &Prepared, e: &Estimate) -> Result<Refinement, InferenceError> {
+        let bad = |problem: String| InferenceError::Recording { file: p.path.display().to_string(), problem };
+        let ne = NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT)).map_err(|e| bad(e.to_string()))?;
+        let ls = least_squares(&ne).map_err(|e| bad(e.to_string()))?;
+        let validated = validation_rmse(dir);
+        let std = validated.unwrap_or_else(|| std::array::from_fn(|k| self.checkpoint.label_std[k]));
+        let prior = Prior::new(e.labels, &std).map_err(|e| bad(e.to_string()))?;
+        let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|e| bad(e.to_string()))?;
+        // Scored as the written URDF will be: projected to a physical robot.
+        let nrmse = |y: &[f64; NUM_LABELS]| -> Result<f64, InferenceError> {
+            let (m, _) = with_labels(&p.model, y).map_err(|e| bad(e.to_string()))?;
+            Ok(ne.mean_nrmse(&dynamic_parameters(&m)))
+        };
+        Ok(Refinement {
+            labels: refined.labels,
+            identifiable: ls.rank,
+            prior_from_validation: validated.is_some(),
+            nrmse_network: nrmse(&e.labels)?,
+            nrmse_refined: nrmse(&refined.labels)?,
+        })
     }
 
     /// Reads and estimates the recording `path`; its robot comes from its `/robot_description` unless `urdf` is
