@@ -527,7 +527,14 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
         None => None,
     };
     let (prepared, e) = predictor.estimate(&args.checkpoint, &args.log, base.as_ref())?;
-    let refinement = if args.no_refine { None } else { Some(predictor.refine(&args.checkpoint, &prepared, &e)?) };
+    // A log the torques of which cannot refine the estimate (no joint moves) keeps the network's, with a warning.
+    let refinement = match args.no_refine {
+        true => None,
+        false => predictor
+            .refine(&args.checkpoint, &prepared, &e)
+            .inspect_err(|err| eprintln!("warning: the estimate is the network's alone, not refined by physics: {err}"))
+            .ok(),
+    };
     let values = refinement.as_ref().map_or(e.labels, |r| r.labels);
     let (model, notes) = dynforge_robot::parameters::with_labels(&prepared.model, &values)
         .with_context(|| format!("applying the estimate to the robot of {}", args.log.display()))?;

@@ -177,6 +177,31 @@ fn train_evaluate_and_estimate_a_small_dataset() {
         stderr(&o)
     );
 
+    // A robot that holds still: its torques cannot refine anything, so the network's estimate stands, with a
+    // warning, and is still written.
+    let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
+    let still: Vec<dynforge_proto::shard::JointState> = (0..6000u32)
+        .map(|i| dynforge_proto::shard::JointState {
+            sec: (i / 1000) as i32,
+            nanosec: (i % 1000) * 1_000_000,
+            frame_id: String::new(),
+            name: names.clone(),
+            position: vec![0.3; 6],
+            velocity: vec![0.0; 6],
+            effort: vec![1.0; 6],
+        })
+        .collect();
+    let held = dir.path().join("still.mcap");
+    dynforge_shard::write(
+        &held,
+        &dynforge_shard::ShardContent { urdf: &robot, joint_states: &still, metadata: &metadata },
+    )
+    .unwrap();
+    let o = dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), held.to_str().unwrap(), "--json"]);
+    assert!(o.status.success() && stderr(&o).contains("not refined by physics"), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["refinement"].is_null() && dir.path().join("still.estimated.urdf").is_file(), "{v}");
+
     let renamed = dir.path().join("renamed.urdf");
     std::fs::write(&renamed, robot.replace("\"joint_1\"", "\"shoulder\"")).unwrap();
     let o = dynforge(&[
