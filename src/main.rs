@@ -2,6 +2,7 @@
 
 mod dataset;
 mod generate;
+mod identify;
 mod robot;
 mod simulate;
 mod sweep;
@@ -40,10 +41,13 @@ enum Command {
     Dataset(dataset::DatasetCommand),
     /// Train the transformer estimator on a dataset (checkpoint every epoch; Ctrl-C saves, --resume continues).
     Train(train::TrainArgs),
-    /// Score a checkpoint on its validation robots: the paper's tables, per-robot scores and the torque check.
+    /// Score a checkpoint on its validation robots: the paper's tables, per-robot scores, the torque check and
+    /// the identification check (network, physics and hybrid side by side).
     Evaluate(train::EvaluateArgs),
-    /// Estimate a robot's parameters from a recording (shard or ROS 2 bag) and write its URDF.
+    /// Estimate a robot's parameters from a recording (shard or ROS 2 bag), refined by physics, and write its URDF.
     Estimate(train::EstimateArgs),
+    /// Calibrate a robot's URDF to its logs by physics alone (least squares on the regressor, no network).
+    Identify(identify::IdentifyArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(train::PipelineArgs),
     /// Run the paper's dataset and architecture grids at a chosen scale and write both tables.
@@ -71,6 +75,7 @@ fn main() -> std::process::ExitCode {
         Command::Train(args) => train::train_command(args),
         Command::Evaluate(args) => train::evaluate_command(args),
         Command::Estimate(args) => train::estimate_command(args),
+        Command::Identify(args) => identify::run(args),
         Command::Pipeline(args) => train::pipeline_command(args),
         Command::Sweep(args) => sweep::run(args),
     };

@@ -10,15 +10,19 @@
 //!   network's estimate and its error, or the training distribution), so that the data pin down every identifiable
 //!   combination and the prior decides only what the data cannot see.
 //!
+//! - [`calibrate`] does the same without a network: a robot description (URDF) is the prior, calibrated to logs.
+//!
 //! The same normal equations score any parameter set's torque prediction on a recording ([`NormalEquations::nrmse`])
 //! without re-running the dynamics per parameter set.
 
+mod calibrate;
 mod labels;
 mod normal;
 mod refine;
 mod samples;
 mod solve;
 
+pub use calibrate::{Calibration, calibrate};
 pub use labels::label_parameters;
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};
