@@ -73,6 +73,16 @@ pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTraject
                     m.name.len()
                 )));
             }
+            // Drivers that do not measure a quantity often publish NaN for it; nothing downstream can use a
+            // non-finite sample, and silently dropping it would bias the log.
+            if let Some((&c, want)) = columns.iter().zip(names).find(|&(&c, _)| !v[c].is_finite()) {
+                return Err(err(format!(
+                    "joint_states message {k} (t = {:.6} s): {what} of joint '{want}' is {} (dynforge needs measured \
+                     position, velocity and effort for every joint)",
+                    m.stamp_ns() as f64 * 1e-9,
+                    v[c]
+                )));
+            }
             Ok(columns.iter().map(|&c| v[c]).collect())
         };
         rows.push((
@@ -142,6 +152,14 @@ mod tests {
         assert!(e.starts_with("robot.mcap: ") && e.contains("no joint 'j7'"), "{e}");
         let e = from_bag(&Bag::default(), &names, Path::new("robot.mcap")).unwrap_err().to_string();
         assert!(e.contains("no sensor_msgs/msg/JointState"), "{e}");
+        let mut unmeasured = message(3_000_000, &["j0", "j7"], 0.0);
+        unmeasured.effort[1] = f64::NAN;
+        let bag = Bag { joint_states: vec![unmeasured], ..Bag::default() };
+        let e = from_bag(&bag, &names, Path::new("robot.mcap")).unwrap_err().to_string();
+        assert!(
+            e.starts_with("robot.mcap: ") && e.contains("effort of joint 'j7' is NaN") && e.contains("0.003"),
+            "{e}"
+        );
         let mut short = message(0, &["j0", "j7"], 0.0);
         short.effort.pop();
         let e =
