@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# RNEA / ABA / CRBA microseconds per call: dynforge vs Pinocchio (called from Python) on the same URDFs, side by side
+# RNEA / ABA / CRBA / regressor microseconds per call: dynforge vs Pinocchio (called from Python) on the same URDFs, side by side
 # in one run. Creates the reference venv if needed. Results also go to bench/out/dynamics.json.
 # Usage: bench/dynamics.sh [CALLS]   (default 200000 for dynforge, a quarter of that for Pinocchio)
 set -euo pipefail
@@ -21,7 +21,7 @@ for urdf in "$out/df6_s1_r7.urdf" "$ur5"; do
   name=$(basename "$urdf" .urdf)
   ours=$("$bin"/dynforge-bench-dynamics "$urdf" "$calls")
   theirs=$("$py" bench/pinocchio_dynamics.py "$urdf" $((calls / 4)))
-  for algo in rnea aba crba; do
+  for algo in rnea aba crba regressor; do
     "$py" -c "import json,sys; a=json.loads(sys.argv[1])['${algo}_us']; b=json.loads(sys.argv[2])['${algo}_us']; \
 print('%-12s %-6s %12.3f %12.3f %7.2fx' % ('$name', '$algo', a, b, b / a))" "$ours" "$theirs"
   done

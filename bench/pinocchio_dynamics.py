@@ -1,4 +1,4 @@
-"""Microseconds per call of Pinocchio's rnea, aba and crba called from Python on a URDF (the reference side of
+"""Microseconds per call of Pinocchio's rnea, aba, crba and joint-torque regressor called from Python on a URDF (the reference side of
 bench/dynamics.sh). Same protocol as dynforge-bench-dynamics: 1000 random states cycled, median of 7 runs."""
 import json
 import sys
@@ -34,6 +34,9 @@ def main():
         "rnea_us": time_per_call(calls, lambda k: pin.rnea(model, data, q[k], qd[k], qdd[k])),
         "aba_us": time_per_call(calls, lambda k: pin.aba(model, data, q[k], qd[k], tau[k])),
         "crba_us": time_per_call(calls, lambda k: pin.crba(model, data, q[k])),
+        "regressor_us": time_per_call(
+            calls, lambda k: pin.computeJointTorqueRegressor(model, data, q[k], qd[k], qdd[k])
+        ),
     }
     print(json.dumps(result))
 

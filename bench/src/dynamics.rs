@@ -1,4 +1,4 @@
-//! Microseconds per call of RNEA, ABA and CRBA on a URDF, over a fixed set of random states.
+//! Microseconds per call of RNEA, ABA, CRBA and the regressor on a URDF, over a fixed set of random states.
 //!
 //! Usage: dynforge-bench-dynamics ROBOT.urdf [CALLS]. Prints one JSON object. `bench/dynamics.sh` runs it beside
 //! Pinocchio on the same file and reports the ratios.
@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use dynforge_robot::rng::Rng;
-use dynforge_robot::{Data, aba, crba, rnea, urdf};
+use dynforge_robot::{Data, aba, crba, regressor, rnea, urdf};
 
 const STATES: usize = 1000;
 const REPEATS: usize = 7;
@@ -49,8 +49,12 @@ fn main() -> Result<()> {
     let crba_us = time_per_call(calls, |k| {
         black_box(crba(&model, &mut data, &q[k])[(0, 0)]);
     });
+    // Identification's inner loop (friction columns included; Pinocchio's has the 10 n inertial ones only).
+    let regressor_us = time_per_call(calls, |k| {
+        black_box(regressor(&model, &mut data, &q[k], &qd[k], &qdd[k])[(0, 0)]);
+    });
     println!(
-        "{{\"dof\": {n}, \"calls\": {calls}, \"rnea_us\": {rnea_us:.4}, \"aba_us\": {aba_us:.4}, \"crba_us\": {crba_us:.4}}}"
+        "{{\"dof\": {n}, \"calls\": {calls}, \"rnea_us\": {rnea_us:.4}, \"aba_us\": {aba_us:.4}, \"crba_us\": {crba_us:.4}, \"regressor_us\": {regressor_us:.4}}}"
     );
     Ok(())
 }

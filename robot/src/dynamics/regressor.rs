@@ -48,7 +48,13 @@ pub fn regressor<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], q
             let row = model.axis(i).transpose() * block.fixed_rows::<3>(0);
             data.regressor.view_mut((i, NI * j), (1, NI)).copy_from(&row);
             if i > 0 {
-                block = data.li_m_i[i].inv_motion_matrix().transpose() * block;
+                // To the parent's frame as a force: X^T = [[R, [p]x R], [0, R]] on 3x3 blocks, without forming
+                // the 6x6 matrix (a third of the multiplications).
+                let x = &data.li_m_i[i];
+                let bottom = x.rot * block.fixed_rows::<3>(3);
+                let top = x.rot * block.fixed_rows::<3>(0) + skew(&x.trans) * bottom;
+                block.fixed_rows_mut::<3>(0).copy_from(&top);
+                block.fixed_rows_mut::<3>(3).copy_from(&bottom);
             }
         }
     }
