@@ -87,7 +87,7 @@ struct RobotResult {
     params: Vec<Vec<f64>>,
 }
 
-/// Validation robots outside the identified ones needed to measure the network's error per label.
+/// Other validation robots needed to measure the network's error per label.
 const MIN_OTHER_ROBOTS: usize = 8;
 
 const ROWS: [&str; 6] =
@@ -95,8 +95,8 @@ const ROWS: [&str; 6] =
 
 /// Runs the check on up to `max_robots` validation robots of `data` that have at least two readable recordings
 /// long enough for a window. `training` is the training robots' label distribution (the physics prior);
-/// `errors` holds the network's per-robot estimate minus truth for validation robots: the hybrid's prior spread is
-/// their RMS over the robots *not* identified here, so no robot informs its own prior.
+/// `errors` holds the network's per-robot estimate minus truth for validation robots: the hybrid's prior spread for
+/// a robot is their RMS over the other robots, so no robot informs its own prior.
 pub(crate) fn check(
     predictor: &Predictor,
     dir: &Path,
@@ -117,17 +117,21 @@ pub(crate) fn check(
     let (ids, robots): (Vec<u64>, Vec<Vec<PathBuf>>) =
         by_robot.into_iter().filter(|(_, v)| v.len() >= 2).take(max_robots).unzip();
     let s = c.standardizer();
-    let others: Vec<&[f64; NUM_LABELS]> = errors.iter().filter(|(r, _)| !ids.contains(r)).map(|(_, e)| e).collect();
-    // With too few other robots to measure the network's error, its spread is taken as the training spread's.
-    let network_std: [f64; NUM_LABELS] = std::array::from_fn(|k| {
-        let rms = (others.iter().map(|e| e[k] * e[k]).sum::<f64>() / others.len().max(1) as f64).sqrt();
-        if others.len() >= MIN_OTHER_ROBOTS { rms.max(1e-6 * s.label_std[k]) } else { training.std()[k] }
-    });
+    // The hybrid's prior spread for robot r: the network's RMS error over every other validation robot (leave one
+    // out), or the training spread when too few others are known.
+    let network_std = |r: u64| -> [f64; NUM_LABELS] {
+        let others: Vec<&[f64; NUM_LABELS]> = errors.iter().filter(|(o, _)| **o != r).map(|(_, e)| e).collect();
+        std::array::from_fn(|k| {
+            let rms = (others.iter().map(|e| e[k] * e[k]).sum::<f64>() / others.len().max(1) as f64).sqrt();
+            if others.len() >= MIN_OTHER_ROBOTS { rms.max(1e-6 * s.label_std[k]) } else { training.std()[k] }
+        })
+    };
+    let robots: Vec<(u64, Vec<PathBuf>)> = ids.into_iter().zip(robots).collect();
     let chunk = 2 * std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut results = Vec::new();
     for (k, group) in robots.chunks(chunk).enumerate() {
         progress("identification", k * chunk, robots.len());
-        let done = map_in_order(group, |paths| one_robot(predictor, dir, paths, training, &network_std));
+        let done = map_in_order(group, |(r, paths)| one_robot(predictor, dir, paths, training, &network_std(*r)));
         for r in done {
             results.extend(r?);
         }
