@@ -33,11 +33,10 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     if !(args.spread > 0.0 && args.spread.is_finite()) {
         bail!("--spread {} is not a positive number", args.spread);
     }
-    let given = match &args.urdf {
+    let mut model = match &args.urdf {
         Some(p) => Some(urdf::load(p)?),
         None => None,
     };
-    let mut model = given.clone();
     let mut ne: Option<NormalEquations> = None;
     for log in &args.logs {
         let p = prepare(log, model.as_ref())?;

@@ -500,10 +500,11 @@ fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>
     )?;
     b.finish_and_clear();
     let md = report.markdown();
-    std::fs::write(checkpoint.join("report.md"), &md)
+    // report.json also feeds `estimate` (the refinement's prior spread): never leave it half written.
+    dynforge_shard::write_atomic(&checkpoint.join("report.md"), md.as_bytes())
         .with_context(|| format!("writing {}/report.md", checkpoint.display()))?;
     let json = serde_json::to_string_pretty(&report)?;
-    std::fs::write(checkpoint.join("report.json"), json)
+    dynforge_shard::write_atomic(&checkpoint.join("report.json"), json.as_bytes())
         .with_context(|| format!("writing {}/report.json", checkpoint.display()))?;
     println!("{md}");
     eprintln!("written: {0}/report.md, {0}/report.json", checkpoint.display());
@@ -539,7 +540,7 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
     let (model, notes) = dynforge_robot::parameters::with_labels(&prepared.model, &values)
         .with_context(|| format!("applying the estimate to the robot of {}", args.log.display()))?;
     let out = args.out.unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
-    std::fs::write(&out, urdf::to_string(&model, &urdf::BaseLink::default()))
+    dynforge_shard::write_atomic(&out, urdf::to_string(&model, &urdf::BaseLink::default()).as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
     if args.json {
         let map: serde_json::Map<String, serde_json::Value> = LABELS
@@ -580,7 +581,8 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
                 r.nrmse_refined,
                 r.nrmse_network
             ),
-            None => println!("network estimate only (--no-refine)"),
+            None if args.no_refine => println!("network estimate only (--no-refine)"),
+            None => println!("network estimate only (not refined: see the warning above)"),
         }
         for n in &notes {
             println!("projected: {n}");

@@ -48,9 +48,6 @@ pub struct Refined {
     pub labels: [f64; NUM_LABELS],
     /// Gauss-Newton iterations taken.
     pub iterations: usize,
-    /// Torque noise level used [N m], and the refined labels' residual sum of squares.
-    pub sigma: f64,
-    pub rss: f64,
 }
 
 /// Maximum a posteriori labels: minimises `|Y pi(y) - tau|^2 / sigma^2 + sum_k ((y_k - mean_k) / std_k)^2` by
@@ -65,14 +62,13 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
     let sigma = sigma.max(NOISE_FLOOR * (c / ne.rows() as f64).sqrt());
     let w = 1.0 / (sigma * sigma);
     // Work in prior-standardised coordinates z = (y - mean) / std: the prior term is |z|^2 and H >= I.
-    let r = NUM_LABELS;
     let labels =
         |z: &DVector<f64>| -> [f64; NUM_LABELS] { std::array::from_fn(|k| prior.mean[k] + prior.std[k] * z[k]) };
     let params = |z: &DVector<f64>| DVector::from_vec(label_parameters(template, &labels(z)));
     let objective = |pi: &DVector<f64>, z: &DVector<f64>| {
         w * (pi.dot(&(&a * pi)) - 2.0 * b.dot(pi) + c).max(0.0) + z.norm_squared()
     };
-    let mut z = DVector::zeros(r);
+    let mut z = DVector::zeros(NUM_LABELS);
     let mut pi = params(&z);
     let mut f = objective(&pi, &z);
     let mut iterations = 0;
@@ -80,15 +76,15 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
         iterations += 1;
         // Jacobian of pi by central differences (exact to rounding for the quadratic terms, O(h^2) for m c^2).
         let h = 1e-3;
-        let mut g = DMatrix::zeros(pi.len(), r);
-        for k in 0..r {
+        let mut g = DMatrix::zeros(pi.len(), NUM_LABELS);
+        for k in 0..NUM_LABELS {
             let (mut up, mut down) = (z.clone(), z.clone());
             up[k] += h;
             down[k] -= h;
             g.set_column(k, &((params(&up) - params(&down)) / (2.0 * h)));
         }
         let grad = g.transpose() * (&a * &pi - &b) * w + &z;
-        let hess = g.transpose() * &a * &g * w + DMatrix::identity(r, r);
+        let hess = g.transpose() * &a * &g * w + DMatrix::identity(NUM_LABELS, NUM_LABELS);
         let (step, _) = pseudo_solve(&hess, &(-grad), 0.0)?;
         let mut alpha = 1.0;
         let mut improved = false;
@@ -107,6 +103,5 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
             break;
         }
     }
-    let rss = ((f - z.norm_squared()) / w).max(0.0);
-    Ok(Refined { labels: labels(&z), iterations, sigma, rss })
+    Ok(Refined { labels: labels(&z), iterations })
 }

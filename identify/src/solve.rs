@@ -21,8 +21,7 @@ pub struct LeastSquares {
     pub pi: Vec<f64>,
     /// Identifiable combinations found (the numerical rank), of `num_params(dof)` parameters.
     pub rank: usize,
-    /// Residual sum of squares and the torque noise level it implies, `sqrt(rss / (rows - rank))` [N m].
-    pub rss: f64,
+    /// The torque noise level the residual implies, `sqrt(rss / (rows - rank))` [N m].
     pub sigma: f64,
 }
 
@@ -72,7 +71,6 @@ pub fn least_squares(ne: &NormalEquations) -> Result<LeastSquares, IdentifyError
     let scaled = DMatrix::from_fn(p, p, |i, j| a[(i, j)] * d[i] * d[j]);
     let (x, rank) = pseudo_solve(&scaled, &b.component_mul(&d), RANK_TOLERANCE)?;
     let pi: Vec<f64> = x.component_mul(&d).iter().copied().collect();
-    let rss = ne.rss(&pi);
-    let sigma = (rss / (ne.rows().saturating_sub(rank)).max(1) as f64).sqrt();
-    Ok(LeastSquares { pi, rank, rss, sigma })
+    let sigma = (ne.rss(&pi) / (ne.rows().saturating_sub(rank)).max(1) as f64).sqrt();
+    Ok(LeastSquares { pi, rank, sigma })
 }

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::metrics::{Scores, score};
 use super::report::group_r2;
-use super::torque::{TorqueRow, normal_equations, physical_parameters, table};
+use super::torque::{TorqueRow, normal_equations, physical_parameters, recording_error, table};
 use crate::data::dataset::prepare;
 use crate::data::follow::{list_shards, shard_dir};
 use crate::data::split::{Split, split_of};
@@ -202,10 +202,7 @@ fn one_robot(
     for p in held {
         held_out.merge(&normal_equations(p)?);
     }
-    let bad = |e: dynforge_identify::IdentifyError| InferenceError::Recording {
-        file: fit[0].path.display().to_string(),
-        problem: e.to_string(),
-    };
+    let bad = |e| recording_error(&fit[0], e);
     let ls = least_squares(&fit_ne).map_err(bad)?;
     let physics = refine(&fit_ne, template, training, ls.sigma).map_err(bad)?.labels;
     let network_prior = Prior::new(network, network_std).map_err(bad)?;
@@ -214,19 +211,10 @@ fn one_robot(
     for labels in [&training.mean, &network] {
         params.push(physical_parameters(&fit[0], template, labels)?.0);
     }
-    params.push(ls.pi.clone());
+    let rank = ls.rank;
+    params.push(ls.pi);
     for labels in [&physics, &hybrid] {
         params.push(physical_parameters(&fit[0], template, labels)?.0);
     }
-    Ok(Some(RobotResult {
-        truth,
-        network,
-        physics,
-        hybrid,
-        rank: ls.rank,
-        fit: fit.len(),
-        held: held.len(),
-        held_out,
-        params,
-    }))
+    Ok(Some(RobotResult { truth, network, physics, hybrid, rank, fit: fit.len(), held: held.len(), held_out, params }))
 }

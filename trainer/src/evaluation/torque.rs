@@ -49,10 +49,14 @@ pub(crate) fn table(rows: &[TorqueRow]) -> String {
     out
 }
 
+/// An error about the recording `p`.
+pub(crate) fn recording_error(p: &Prepared, problem: impl std::fmt::Display) -> InferenceError {
+    InferenceError::Recording { file: p.path.display().to_string(), problem: problem.to_string() }
+}
+
 /// The normal equations of a prepared recording (joints in model order, on the 1 kHz grid).
 pub(crate) fn normal_equations(p: &Prepared) -> Result<NormalEquations, InferenceError> {
-    NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT))
-        .map_err(|e| InferenceError::Recording { file: p.path.display().to_string(), problem: e.to_string() })
+    NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT)).map_err(|e| recording_error(p, e))
 }
 
 /// The parameter vector of `labels` put on `model` (projected to a physical robot, as the written URDF is), and the
@@ -62,8 +66,7 @@ pub(crate) fn physical_parameters(
     model: &Model,
     labels: &[f64; NUM_LABELS],
 ) -> Result<(Vec<f64>, usize), InferenceError> {
-    let (m, notes) = with_labels(model, labels)
-        .map_err(|e| InferenceError::Recording { file: p.path.display().to_string(), problem: e.to_string() })?;
+    let (m, notes) = with_labels(model, labels).map_err(|e| recording_error(p, e))?;
     Ok((dynamic_parameters(&m), notes.len()))
 }
 

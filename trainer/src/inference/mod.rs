@@ -4,15 +4,15 @@
 use std::path::Path;
 
 use burn::tensor::Device;
-use dynforge_identify::{NormalEquations, Prior, least_squares, refine};
+use dynforge_identify::{Prior, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
 use dynforge_robot::Model;
-use dynforge_robot::parameters::{dynamic_parameters, with_labels};
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::data::cache::CachedWindows;
-use crate::data::dataset::{DataError, GRID_DT, Prepared, prepare, row_width, windows};
+use crate::data::dataset::{DataError, Prepared, prepare, row_width, windows};
 use crate::data::features::JacobianFeatures;
+use crate::evaluation::torque::{normal_equations, physical_parameters, recording_error};
 use crate::model::Estimator;
 use crate::training::predict;
 
@@ -124,18 +124,14 @@ impl Predictor {
     /// is the network's per-robot validation RMSE from `report.json` in the checkpoint directory (written by
     /// `evaluate`), or the training labels' spread when there is none.
     pub fn refine(&self, dir: &Path, p: &Prepared, e: &Estimate) -> Result<Refinement, InferenceError> {
-        let bad = |problem: String| InferenceError::Recording { file: p.path.display().to_string(), problem };
-        let ne = NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT)).map_err(|e| bad(e.to_string()))?;
-        let ls = least_squares(&ne).map_err(|e| bad(e.to_string()))?;
+        let ne = normal_equations(p)?;
+        let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
         let validated = validation_rmse(dir);
         let std = validated.unwrap_or_else(|| std::array::from_fn(|k| self.checkpoint.label_std[k]));
-        let prior = Prior::new(e.labels, &std).map_err(|e| bad(e.to_string()))?;
-        let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|e| bad(e.to_string()))?;
+        let prior = Prior::new(e.labels, &std).map_err(|err| recording_error(p, err))?;
+        let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|err| recording_error(p, err))?;
         // Scored as the written URDF will be: projected to a physical robot.
-        let nrmse = |y: &[f64; NUM_LABELS]| -> Result<f64, InferenceError> {
-            let (m, _) = with_labels(&p.model, y).map_err(|e| bad(e.to_string()))?;
-            Ok(ne.mean_nrmse(&dynamic_parameters(&m)))
-        };
+        let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| ne.mean_nrmse(&pi));
         Ok(Refinement {
             labels: refined.labels,
             identifiable: ls.rank,
