@@ -7,7 +7,7 @@ use clap::Args;
 use dynforge_identify::{NormalEquations, calibrate};
 use dynforge_proto::LABELS;
 use dynforge_robot::urdf;
-use dynforge_trainer::data::dataset::{GRID_DT, prepare};
+use dynforge_recording::read;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
@@ -39,8 +39,8 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     };
     let mut ne: Option<NormalEquations> = None;
     for log in &args.logs {
-        let p = prepare(log, model.as_ref())?;
-        let this = NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT))
+        let p = read(log, model.as_ref())?;
+        let this = NormalEquations::of(&p.model, &p.trajectory)
             .with_context(|| format!("identifying from {}", log.display()))?;
         match &mut ne {
             Some(sum) => sum.merge(&this),
@@ -52,7 +52,7 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     let first = &args.logs[0];
     let c = calibrate(&model, &ne, args.spread).with_context(|| format!("calibrating to {}", first.display()))?;
     let out = args.out.unwrap_or_else(|| first.with_extension("calibrated.urdf"));
-    dynforge_shard::write_atomic(&out, urdf::to_string(&c.model, &urdf::BaseLink::default()).as_bytes())
+    dynforge_proto::run_dir::write_atomic(&out, urdf::to_string(&c.model, &urdf::BaseLink::default()).as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
     if args.json {
         let parameters: serde_json::Map<String, serde_json::Value> = LABELS

@@ -45,7 +45,7 @@ pub fn run(args: RobotArgs) -> Result<()> {
     let text = robot.urdf();
     match &args.out {
         Some(path) => {
-            dynforge_shard::write_atomic(path, text.as_bytes())
+            dynforge_proto::run_dir::write_atomic(path, text.as_bytes())
                 .with_context(|| format!("writing {}", path.display()))?;
             eprintln!("wrote robot {} of seed {} ({}) to {}", args.id, args.seed, robot.model.name(), path.display());
         }

@@ -11,9 +11,8 @@ use dynforge_proto::LABELS;
 use dynforge_robot::urdf;
 use dynforge_trainer::checkpoint::Checkpoint;
 use dynforge_trainer::data::cache::{CachedWindows, load_or_build};
-use dynforge_trainer::data::dataset::dataset_robot;
 use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::follow::{ShardFollower, shard_dir};
+use dynforge_recording::dataset::{ShardFollower, dataset_robot, shard_dir};
 use dynforge_trainer::data::normalize::{Standardizer, split_windows};
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_trainer::evaluation::{Report, evaluate_checkpoint};
@@ -501,10 +500,10 @@ fn run_evaluation(checkpoint: &Path, data: &Path, windows: Option<CachedWindows>
     b.finish_and_clear();
     let md = report.markdown();
     // report.json also feeds `estimate` (the refinement's prior spread): never leave it half written.
-    dynforge_shard::write_atomic(&checkpoint.join("report.md"), md.as_bytes())
+    dynforge_proto::run_dir::write_atomic(&checkpoint.join("report.md"), md.as_bytes())
         .with_context(|| format!("writing {}/report.md", checkpoint.display()))?;
     let json = serde_json::to_string_pretty(&report)?;
-    dynforge_shard::write_atomic(&checkpoint.join("report.json"), json.as_bytes())
+    dynforge_proto::run_dir::write_atomic(&checkpoint.join("report.json"), json.as_bytes())
         .with_context(|| format!("writing {}/report.json", checkpoint.display()))?;
     println!("{md}");
     eprintln!("written: {0}/report.md, {0}/report.json", checkpoint.display());
@@ -540,7 +539,7 @@ pub fn estimate_command(args: EstimateArgs) -> Result<()> {
     let (model, notes) = dynforge_robot::parameters::with_labels(&prepared.model, &values)
         .with_context(|| format!("applying the estimate to the robot of {}", args.log.display()))?;
     let out = args.out.unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
-    dynforge_shard::write_atomic(&out, urdf::to_string(&model, &urdf::BaseLink::default()).as_bytes())
+    dynforge_proto::run_dir::write_atomic(&out, urdf::to_string(&model, &urdf::BaseLink::default()).as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
     if args.json {
         let map: serde_json::Map<String, serde_json::Value> = LABELS

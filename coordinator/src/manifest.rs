@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::plan::Partition;
 
-pub const FILE: &str = "manifest.toml";
+pub const FILE: &str = dynforge_proto::run_dir::MANIFEST;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -97,7 +97,7 @@ impl Manifest {
             }
             grown = Some(existing.robots);
         }
-        dynforge_shard::write_atomic(&path, self.to_toml().as_bytes())
+        dynforge_proto::run_dir::write_atomic(&path, self.to_toml().as_bytes())
             .map_err(|e| ManifestError::Io { path: shown, message: e.to_string() })?;
         Ok(grown)
     }

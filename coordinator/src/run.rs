@@ -15,7 +15,7 @@ use dynforge_worker::simulate::SimConfig;
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::manifest::{Manifest, ManifestError};
 use crate::plan::{self, Partition};
-use crate::verify::{LEDGER, SHARDS};
+use dynforge_proto::run_dir::{LEDGER, LOGS, SHARDS, is_temporary};
 
 /// Everything `generate` needs.
 #[derive(Debug, Clone)]
@@ -114,7 +114,7 @@ fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
     for entry in std::fs::read_dir(shards)? {
         let entry = entry?;
         let name = entry.file_name().to_string_lossy().to_string();
-        if name.starts_with('.') && name.ends_with(".tmp") {
+        if is_temporary(&name) {
             std::fs::remove_file(entry.path())?;
             n += 1;
         }
@@ -131,7 +131,7 @@ struct Workers {
 impl Workers {
     fn spawn(&mut self, slot: usize) -> Result<(), GenerateError> {
         self.kill(slot);
-        let logs = self.dir.join("logs");
+        let logs = self.dir.join(LOGS);
         let log = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
@@ -192,7 +192,7 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     }
     let dir_err = |source| GenerateError::Dir { dir: cfg.dir.display().to_string(), source };
     std::fs::create_dir_all(cfg.dir.join(SHARDS)).map_err(dir_err)?;
-    std::fs::create_dir_all(cfg.dir.join("logs")).map_err(dir_err)?;
+    std::fs::create_dir_all(cfg.dir.join(LOGS)).map_err(dir_err)?;
     let manifest =
         Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
     if let Some(before) = manifest.create_or_check(&cfg.dir)? {

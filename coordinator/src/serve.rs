@@ -6,7 +6,7 @@ use dynforge_ipc::{IpcError, JobReport, RunId, Worker};
 use dynforge_worker::job::{Job, Outcome, Runner};
 
 use crate::manifest::Manifest;
-use crate::verify::SHARDS;
+use dynforge_proto::run_dir::SHARDS;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {

@@ -4,6 +4,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use dynforge_proto::LABELS;
+use dynforge_proto::run_dir::{LEDGER, SHARDS};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 use dynforge_worker::job::{Job, shard_name};
 
@@ -11,10 +12,6 @@ use crate::ledger::{self, Status};
 use crate::manifest::Manifest;
 use crate::plan;
 
-/// Name of the shard directory inside a run directory.
-pub const SHARDS: &str = "shards";
-/// Name of the ledger inside a run directory.
-pub const LEDGER: &str = "ledger.tsv";
 
 /// What `verify` found.
 #[derive(Debug, Default, Clone, PartialEq)]

@@ -17,6 +17,7 @@
 
 mod calibrate;
 mod labels;
+mod latent;
 mod normal;
 mod refine;
 mod samples;
@@ -24,9 +25,10 @@ mod solve;
 
 pub use calibrate::{Calibration, calibrate};
 pub use labels::label_parameters;
+pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};
-pub use samples::{REST_SPEED, Recording};
+pub use samples::REST_SPEED;
 pub use solve::{LeastSquares, least_squares};
 
 /// Why an identification failed.
@@ -40,4 +42,6 @@ pub enum IdentifyError {
     Decomposition,
     #[error("the prior's standard deviation of label {0} is {1}, not a positive number")]
     Prior(&'static str, f64),
+    #[error("a parameter prior needs at least two parameter vectors of one length ({0} given)")]
+    PriorSamples(usize),
 }

@@ -5,7 +5,9 @@ use dynforge_robot::{Data, Model, regressor};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::samples::{REST_SPEED, Recording};
+use dynforge_recording::JointTrajectory;
+
+use crate::samples::{REST_SPEED, for_each};
 
 /// `sum y y^T`, `sum y tau`, `sum tau^2`, `sum tau` and the count over the moving samples of one joint, where `y`
 /// is that joint's row of the regressor. Kept per joint so that a parameter set's torque error can be normalised by
@@ -37,17 +39,23 @@ impl NormalEquations {
         }
     }
 
-    /// Adds the moving samples of `rec`, a recording of `model`'s joints (only its kinematics are used).
-    pub fn add(&mut self, model: &Model, rec: &Recording) -> Result<(), IdentifyError> {
+    /// Adds the moving samples of `traj`, a trajectory of `model`'s joints on a uniform grid (only the model's
+    /// kinematics are used).
+    pub fn add(&mut self, model: &Model, traj: &JointTrajectory) -> Result<(), IdentifyError> {
+        self.add_range(model, traj, 0..traj.len())
+    }
+
+    /// Adds the moving samples `range` of `traj` (e.g. a window's).
+    pub fn add_range(&mut self, model: &Model, traj: &JointTrajectory, range: std::ops::Range<usize>) -> Result<(), IdentifyError> {
         let n = self.dof;
-        if model.dof() != n || rec.dof != n {
-            return Err(IdentifyError::Dof(rec.dof.min(model.dof()), n));
+        if model.dof() != n || traj.joints() != n {
+            return Err(IdentifyError::Dof(traj.joints().min(model.dof()), n));
         }
         let mut data = Data::new(model);
         // Row j of Y is zero outside the inertial parameters of links j.. and joint j's friction pair.
         let support: Vec<Vec<usize>> =
             (0..n).map(|j| (NI * j..NI * n).chain([NI * n + NF * j, NI * n + NF * j + 1]).collect()).collect();
-        rec.for_each(|q, qd, qdd, tau| {
+        for_each(traj, range, |q, qd, qdd, tau| {
             let y = regressor(model, &mut data, q, qd, qdd);
             for j in 0..n {
                 if qd[j].abs() < REST_SPEED {
@@ -69,10 +77,10 @@ impl NormalEquations {
         Ok(())
     }
 
-    /// The normal equations of `rec` alone.
-    pub fn of(model: &Model, rec: &Recording) -> Result<Self, IdentifyError> {
+    /// The normal equations of `traj` alone.
+    pub fn of(model: &Model, traj: &JointTrajectory) -> Result<Self, IdentifyError> {
         let mut ne = NormalEquations::new(model.dof());
-        ne.add(model, rec)?;
+        ne.add(model, traj)?;
         Ok(ne)
     }
 
@@ -97,7 +105,7 @@ impl NormalEquations {
     }
 
     /// `(Y^T Y, Y^T tau, tau^T tau)` over all joints.
-    pub(crate) fn gram(&self) -> (DMatrix<f64>, DVector<f64>, f64) {
+    pub fn gram(&self) -> (DMatrix<f64>, DVector<f64>, f64) {
         let p = num_params(self.dof);
         let mut a = DMatrix::zeros(p, p);
         let mut b = DVector::zeros(p);
@@ -106,6 +114,11 @@ impl NormalEquations {
             b += &self.b[j];
         }
         (a, b, self.c.iter().sum())
+    }
+
+    /// Joint `j`'s sums: `(Y_j^T Y_j, Y_j^T tau_j, tau_j^T tau_j, rows)`.
+    pub fn joint(&self, j: usize) -> (&DMatrix<f64>, &DVector<f64>, f64, usize) {
+        (&self.a[j], &self.b[j], self.c[j], self.n[j])
     }
 
     /// Residual sum of squares of `pi`'s torques on joint `j` (0 when it never moved).

@@ -13,6 +13,10 @@ use crate::normal::NormalEquations;
 /// 1e-5 of the best-excited one, well clear of the ~1e-16 rounding of the structural null space.
 pub const RANK_TOLERANCE: f64 = 1e-10;
 
+/// Squared column norms of the regressor below this fraction of the largest are rounding, not signal: a column
+/// `1e-10` of the largest in norm is beyond what double precision distinguishes after the normal equations.
+const ZERO_COLUMN: f64 = 1e-20;
+
 /// The classical estimate.
 #[derive(Debug, Clone)]
 pub struct LeastSquares {
@@ -66,8 +70,12 @@ pub fn least_squares(ne: &NormalEquations) -> Result<LeastSquares, IdentifyError
     }
     let (a, b, _) = ne.gram();
     let p = num_params(ne.dof());
-    // Jacobi scaling: parameters of different units (kg, kg m, kg m^2, N m) get comparable columns.
-    let d = DVector::from_fn(p, |i, _| if a[(i, i)] > 0.0 { 1.0 / a[(i, i)].sqrt() } else { 0.0 });
+    // Jacobi scaling: parameters of different units (kg, kg m, kg m^2, N m) get comparable columns. A column no
+    // torque depends on (e.g. link 2's mcy) is zero only up to rounding (1e-34 of the largest squared norm
+    // measured): scaled to unit norm, that rounding would pass for an identifiable direction, so columns under
+    // ZERO_COLUMN of the largest squared norm count as zero.
+    let largest = (0..p).map(|i| a[(i, i)]).fold(0.0f64, f64::max);
+    let d = DVector::from_fn(p, |i, _| if a[(i, i)] > ZERO_COLUMN * largest { 1.0 / a[(i, i)].sqrt() } else { 0.0 });
     let scaled = DMatrix::from_fn(p, p, |i, j| a[(i, j)] * d[i] * d[j]);
     let (x, rank) = pseudo_solve(&scaled, &b.component_mul(&d), RANK_TOLERANCE)?;
     let pi: Vec<f64> = x.component_mul(&d).iter().copied().collect();

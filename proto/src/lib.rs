@@ -1,11 +1,13 @@
 //! The contracts every dynforge process agrees on.
 //!
 //! Anything that crosses a process or file boundary (the label layout the trainer regresses, the per-link dynamic
-//! parameter layout, and later the job messages and the shard schema) is defined here exactly once, so that the
-//! generator, the worker, the shards and the trainer can never disagree about what column 17 means.
+//! parameter layout, the shard schema, the run directory and its temporary-file rule, the job messages between the
+//! coordinator and its workers) is defined here exactly once, so that the generator, the worker, the shards and the
+//! trainer can never disagree about what column 17 means.
 
 pub mod labels;
 pub mod params;
+pub mod run_dir;
 pub mod shard;
 
 pub use labels::{LABELS, Label, LabelKind, NUM_LABELS};

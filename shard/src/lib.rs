@@ -41,13 +41,14 @@ fn mcap_err(path: &Path) -> impl Fn(mcap::McapError) -> ShardError + '_ {
     move |e| ShardError::Mcap { path: path.to_path_buf(), message: e.to_string() }
 }
 
-/// Writes a shard to `path` atomically (see [`write_atomic`]); the same content always gives the same bytes.
+/// Writes a shard to `path` by the temporary-file rule ([`dynforge_proto::run_dir`]); the same content always gives
+/// the same bytes.
 /// Returns the file's [`content_hash`].
 pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError> {
     if path.file_name().is_none() {
         return Err(ShardError::Content { path: path.into(), message: "not a file path".into() });
     }
-    replace_atomically(
+    dynforge_proto::run_dir::replace_atomically(
         path,
         |tmp| {
             write_file(tmp, content)?;
@@ -55,43 +56,6 @@ pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError>
         },
         |p, e| io_err(p)(e),
     )
-}
-
-/// Writes `bytes` to `path` atomically, as shards are written: a temporary file beside it (named after the file
-/// and this process, so concurrent writers never share one), fsync, rename, fsync of the directory. The file
-/// either appears whole or not at all; on failure the temporary file is removed and `path` is untouched. The
-/// directory must exist.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    use std::io::Write;
-    replace_atomically(
-        path,
-        |tmp| {
-            let mut f = std::fs::File::create(tmp)?;
-            f.write_all(bytes)?;
-            f.sync_all()
-        },
-        |_, e| e,
-    )
-}
-
-/// `fill` writes (and syncs) the temporary file; it then replaces `path`, and the rename is made durable.
-fn replace_atomically<T, E>(
-    path: &Path,
-    fill: impl FnOnce(&Path) -> Result<T, E>,
-    io: impl Fn(&Path, std::io::Error) -> E,
-) -> Result<T, E> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = fill(&tmp).and_then(|value| {
-        std::fs::rename(&tmp, path).map_err(|e| io(path, e))?;
-        std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(|e| io(dir, e))?;
-        Ok(value)
-    });
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }
 
 fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {

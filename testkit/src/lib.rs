@@ -37,32 +37,44 @@ pub fn run_python(python: &str, script: &Path, args: &[&str], stdin: &str) -> St
 }
 
 /// A recording of `model` following `q_j(t) = a_j sin(w_j t + p_j)` (a different set of amplitudes, frequencies and
-/// phases for each `variant`), with the torques of exact inverse dynamics plus friction: `(q, qd, tau)`, row-major,
-/// `samples` rows at step `dt`. The reference motion of the torque check and identification tests.
+/// phases for each `variant`), `samples` samples at step `dt`, logged as our shards and a motor driver log it: the
+/// effort of sample `i` is the torque held over the step after it, here the torque of exact inverse dynamics plus
+/// friction at the step's midpoint (the step's mean torque to `O(dt^2)`). The reference motion of the torque check
+/// and identification tests.
 pub fn sinusoid_recording(
     model: &dynforge_robot::Model,
     variant: u32,
     dt: f64,
     samples: usize,
-) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+) -> dynforge_recording::JointTrajectory {
     use dynforge_robot::{Data, friction_torque, rnea};
     let n = model.dof();
     let v = variant as f64;
     let a = |j: usize| 0.4 + 0.1 * j as f64 + 0.05 * v;
     let w = |j: usize| 1.0 + 0.3 * j as f64 + 0.37 * v;
     let p = |j: usize| 0.7 * j as f64 + 1.3 * v;
+    let state = |t: f64| -> [Vec<f64>; 3] {
+        [
+            (0..n).map(|j| a(j) * (w(j) * t + p(j)).sin()).collect(),
+            (0..n).map(|j| a(j) * w(j) * (w(j) * t + p(j)).cos()).collect(),
+            (0..n).map(|j| -a(j) * w(j) * w(j) * (w(j) * t + p(j)).sin()).collect(),
+        ]
+    };
     let mut data = Data::new(model);
-    let (mut q, mut qd, mut tau) = (vec![], vec![], vec![]);
+    let mut out = dynforge_recording::JointTrajectory {
+        names: model.joints().iter().map(|j| j.name.clone()).collect(),
+        ..Default::default()
+    };
     let mut fr = vec![0.0; n];
     for i in 0..samples {
         let t = i as f64 * dt;
-        let qi: Vec<f64> = (0..n).map(|j| a(j) * (w(j) * t + p(j)).sin()).collect();
-        let qdi: Vec<f64> = (0..n).map(|j| a(j) * w(j) * (w(j) * t + p(j)).cos()).collect();
-        let qddi: Vec<f64> = (0..n).map(|j| -a(j) * w(j) * w(j) * (w(j) * t + p(j)).sin()).collect();
-        friction_torque(model, &qdi, &mut fr);
-        tau.extend(rnea(model, &mut data, &qi, &qdi, &qddi).iter().zip(&fr).map(|(x, f)| x + f));
-        q.extend(qi);
-        qd.extend(qdi);
+        let [q, qd, _] = state(t);
+        let [qm, qdm, qddm] = state(t + dt / 2.0);
+        friction_torque(model, &qdm, &mut fr);
+        out.tau.extend(rnea(model, &mut data, &qm, &qdm, &qddm).iter().zip(&fr).map(|(x, f)| x + f));
+        out.t.push(t);
+        out.q.extend(q);
+        out.qd.extend(qd);
     }
-    (q, qd, tau)
+    out
 }

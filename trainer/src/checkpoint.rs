@@ -41,11 +41,11 @@ fn file_error(path: &Path, problem: impl ToString) -> CheckpointError {
     CheckpointError::File { file: path.display().to_string(), problem: problem.to_string() }
 }
 
-/// Writes `bytes` to `path` atomically (see [`dynforge_shard::write_atomic`]), creating its directory.
+/// Writes `bytes` to `path` atomically (see [`dynforge_proto::run_dir::write_atomic`]), creating its directory.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
     path.parent()
         .map_or(Ok(()), std::fs::create_dir_all)
-        .and_then(|()| dynforge_shard::write_atomic(path, bytes))
+        .and_then(|()| dynforge_proto::run_dir::write_atomic(path, bytes))
         .map_err(|e| file_error(path, e))
 }
 

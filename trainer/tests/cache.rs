@@ -77,7 +77,7 @@ fn shards_read_on_all_cores_join_in_path_order() {
         }
     }
     let features = JacobianFeatures::new(&robot.unwrap().model);
-    let paths = dynforge_trainer::data::follow::list_shards(dir.path()).unwrap();
+    let paths = dynforge_recording::dataset::list_shards(dir.path()).unwrap();
     assert_eq!(paths.len(), 6);
     let empty = || CachedWindows {
         spec: WindowSpec::default(),

@@ -5,7 +5,8 @@ mod common;
 use common::write_shard;
 use dynforge_robot::Data;
 use dynforge_robot::parameters::labels;
-use dynforge_trainer::data::dataset::{prepare, row_width, stats, windows};
+use dynforge_recording::read;
+use dynforge_trainer::data::dataset::{row_width, stats, windows};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_worker::job::Job;
@@ -14,7 +15,7 @@ use dynforge_worker::job::Job;
 fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
     let dir = tempfile::tempdir().unwrap();
     let (path, robot) = write_shard(&Job { seed: 6, robot: 3, trajectory: 2 }, dir.path());
-    let p = prepare(&path, None).unwrap();
+    let p = read(&path, None).unwrap();
     assert_eq!(p.model, robot.model, "the robot comes from /robot_description");
     assert_eq!(p.labels.unwrap(), labels(&robot.model).unwrap());
     assert_eq!(p.robot, Some(3));

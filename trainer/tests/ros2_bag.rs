@@ -7,7 +7,8 @@ mod common;
 use common::write_shard;
 use dynforge_proto::shard::JOINT_STATE_DEFINITION;
 use dynforge_robot::rng::Rng;
-use dynforge_trainer::data::dataset::{prepare, windows};
+use dynforge_recording::read;
+use dynforge_trainer::data::dataset::windows;
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_worker::job::Job;
@@ -66,8 +67,8 @@ fn an_irregular_shuffled_ros2_bag_gives_the_windows_of_the_regular_recording() {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/write_bag.py");
     dynforge_testkit::run_python(&py, &script, &[], &request.to_string());
 
-    let regular = prepare(&shard, None).unwrap();
-    let logged = prepare(&bag_path, None).unwrap();
+    let regular = read(&shard, None).unwrap();
+    let logged = read(&bag_path, None).unwrap();
     assert_eq!(logged.model, regular.model);
     assert!(logged.labels.is_none(), "a robot's own log has no labels");
     assert_eq!(logged.trajectory.len(), regular.trajectory.len());

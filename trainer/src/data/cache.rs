@@ -6,9 +6,13 @@
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::NUM_LABELS;
+use dynforge_proto::run_dir::{CACHE, LEDGER, MANIFEST, SHARDS};
 use dynforge_shard::content_hash;
 
-use super::dataset::{DataError, prepare, row_width, windows};
+use dynforge_recording::dataset::list_shards;
+use dynforge_recording::{GRID_DT, ReadError, read};
+
+use super::dataset::{row_width, windows};
 use super::features::JacobianFeatures;
 use super::window::WindowSpec;
 
@@ -79,7 +83,7 @@ struct ShardWindows {
 }
 
 fn read_shard(path: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<ShardWindows, String> {
-    let prep = prepare(path, None).map_err(|e| e.to_string())?;
+    let prep = read(path, None).map_err(|e| e.to_string())?;
     let (Some(labels), Some(robot)) = (prep.labels, prep.robot) else {
         return Err(format!("{}: no labels or robot id (not a dataset shard)", path.display()));
     };
@@ -88,18 +92,18 @@ fn read_shard(path: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Re
     Ok(ShardWindows { robot, labels, width, count, data })
 }
 
-fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, DataError> {
-    let read = |name: &str| {
+fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, ReadError> {
+    let read_file = |name: &str| {
         std::fs::read(dir.join(name))
-            .map_err(|e| DataError::Content { file: dir.join(name).display().to_string(), problem: e.to_string() })
+            .map_err(|e| ReadError::Content { file: dir.join(name).display().to_string(), problem: e.to_string() })
     };
-    let mut material = read("manifest.toml")?;
+    let mut material = read_file(MANIFEST)?;
     // The ledger's records, in a canonical order: completion order differs from run to run.
-    let ledger = String::from_utf8_lossy(&read("ledger.tsv")?).to_string();
+    let ledger = String::from_utf8_lossy(&read_file(LEDGER)?).to_string();
     let mut lines: Vec<&str> = ledger.lines().collect();
     lines.sort_unstable();
     material.extend(lines.join("\n").bytes());
-    material.extend(format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, super::dataset::GRID_DT).bytes());
+    material.extend(format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, GRID_DT).bytes());
     for e in &features.entries {
         material.extend(e.name.bytes());
     }
@@ -156,8 +160,8 @@ fn decode(bytes: &[u8]) -> Option<CachedWindows> {
 }
 
 /// Cache file of a run directory for this preprocessing.
-pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, DataError> {
-    Ok(dir.join("cache").join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
+pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, ReadError> {
+    Ok(dir.join(CACHE).join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
 }
 
 /// The windows of every shard of the `generate` directory `dir`: from the cache if it is current, else built
@@ -167,22 +171,22 @@ pub fn load_or_build(
     spec: &WindowSpec,
     features: &JacobianFeatures,
     mut progress: impl FnMut(usize, usize),
-) -> Result<(CachedWindows, Vec<String>), DataError> {
+) -> Result<(CachedWindows, Vec<String>), ReadError> {
     let path = cache_path(dir, spec, features)?;
     if let Some(w) = std::fs::read(&path).ok().and_then(|b| decode(&b)) {
         return Ok((w, Vec::new()));
     }
     let io = |p: &Path| {
         let shown = p.display().to_string();
-        move |e: std::io::Error| DataError::Content { file: shown.clone(), problem: e.to_string() }
+        move |e: std::io::Error| ReadError::Content { file: shown.clone(), problem: e.to_string() }
     };
-    let shards = dir.join("shards");
-    let paths = super::follow::list_shards(&shards).map_err(io(&shards))?;
+    let shards = dir.join(SHARDS);
+    let paths = list_shards(&shards).map_err(io(&shards))?;
     let mut out =
         CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
     let skipped = out.add_shards(&paths, features, &mut progress).into_iter().filter_map(Result::err).collect();
-    let cache_dir = dir.join("cache");
+    let cache_dir = dir.join(CACHE);
     std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
-    dynforge_shard::write_atomic(&path, &encode(&out)).map_err(io(&path))?;
+    dynforge_proto::run_dir::write_atomic(&path, &encode(&out)).map_err(io(&path))?;
     Ok((out, skipped))
 }

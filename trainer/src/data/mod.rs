@@ -1,13 +1,11 @@
-//! The data pipeline, one module per stage: reading joint trajectories (`source`), timestep unification
-//! (`resample`), kinematic enrichment with pruned Jacobian features (`features`), windowing with the offset-based
-//! secondary sampler (`window`), and the robot-level split (`split`).
+//! The data pipeline after a recording is read (`dynforge_recording`: joint trajectories by name, on a uniform
+//! grid), one module per stage: kinematic enrichment with pruned Jacobian features (`features`), windowing with the
+//! offset-based secondary sampler (`window`), the robot-level split (`split`), standardisation (`normalize`), and
+//! the cache of a dataset's windows (`cache`).
 
 pub mod cache;
 pub mod dataset;
 pub mod features;
-pub mod follow;
 pub mod normalize;
-pub mod resample;
-pub mod source;
 pub mod split;
 pub mod window;

@@ -18,8 +18,8 @@ use serde::{Deserialize, Serialize};
 use super::metrics::{Scores, score};
 use super::report::group_r2;
 use super::torque::{TorqueRow, normal_equations, physical_parameters, recording_error, table};
-use crate::data::dataset::prepare;
-use crate::data::follow::{list_shards, shard_dir};
+use dynforge_recording::dataset::{list_shards, shard_dir};
+use dynforge_recording::read;
 use crate::data::split::{Split, split_of};
 use crate::inference::{InferenceError, Predictor};
 use crate::parallel::map_in_order;
@@ -174,7 +174,7 @@ fn one_robot(
     training: &Prior,
     network_std: &[f64; NUM_LABELS],
 ) -> Result<Option<RobotResult>, InferenceError> {
-    let preps: Vec<_> = paths.iter().filter_map(|p| prepare(p, None).ok()).filter(|p| p.labels.is_some()).collect();
+    let preps: Vec<_> = paths.iter().filter_map(|p| read(p, None).ok()).filter(|p| p.labels.is_some()).collect();
     if preps.len() < 2 {
         return Ok(None);
     }

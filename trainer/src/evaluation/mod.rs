@@ -20,8 +20,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::Checkpoint;
 use crate::data::cache::CachedWindows;
-use crate::data::dataset::prepare;
-use crate::data::follow::{list_shards, shard_dir};
+use dynforge_recording::dataset::{list_shards, shard_dir};
+use dynforge_recording::read;
 use crate::data::split::{Split, split_of};
 use crate::inference::{InferenceError, Predictor};
 use crate::training::evaluate;
@@ -167,7 +167,7 @@ pub fn evaluate_checkpoint(
             if named_robot(&p).is_some_and(|r| split_of(c.split_seed, r, c.validation_fraction) != Split::Validation) {
                 continue;
             }
-            let Ok(prep) = prepare(&p, None) else { continue };
+            let Ok(prep) = read(&p, None) else { continue };
             if prep.robot.is_some_and(|r| split_of(c.split_seed, r, c.validation_fraction) == Split::Validation) {
                 chosen.push(prep);
             }

@@ -12,7 +12,7 @@ use dynforge_robot::Model;
 use dynforge_robot::parameters::{dynamic_parameters, with_labels};
 use serde::{Deserialize, Serialize};
 
-use crate::data::dataset::{GRID_DT, Prepared};
+use dynforge_recording::Recording;
 use crate::inference::InferenceError;
 
 /// Held-out torque NRMSE of one parameter set.
@@ -50,19 +50,19 @@ pub(crate) fn table(rows: &[TorqueRow]) -> String {
 }
 
 /// An error about the recording `p`.
-pub(crate) fn recording_error(p: &Prepared, problem: impl std::fmt::Display) -> InferenceError {
+pub(crate) fn recording_error(p: &Recording, problem: impl std::fmt::Display) -> InferenceError {
     InferenceError::Recording { file: p.path.display().to_string(), problem: problem.to_string() }
 }
 
 /// The normal equations of a prepared recording (joints in model order, on the 1 kHz grid).
-pub(crate) fn normal_equations(p: &Prepared) -> Result<NormalEquations, InferenceError> {
-    NormalEquations::of(&p.model, &p.trajectory.recording(GRID_DT)).map_err(|e| recording_error(p, e))
+pub(crate) fn normal_equations(p: &Recording) -> Result<NormalEquations, InferenceError> {
+    NormalEquations::of(&p.model, &p.trajectory).map_err(|e| recording_error(p, e))
 }
 
 /// The parameter vector of `labels` put on `model` (projected to a physical robot, as the written URDF is), and the
 /// number of projections that took.
 pub(crate) fn physical_parameters(
-    p: &Prepared,
+    p: &Recording,
     model: &Model,
     labels: &[f64; NUM_LABELS],
 ) -> Result<(Vec<f64>, usize), InferenceError> {
@@ -73,7 +73,7 @@ pub(crate) fn physical_parameters(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::source::JointTrajectory;
+    use dynforge_recording::GRID_DT;
     use dynforge_robot::generator::{GeneratorConfig, generate};
     use dynforge_robot::parameters::labels;
 
@@ -82,13 +82,10 @@ mod tests {
         let cfg = GeneratorConfig::default();
         let truth = generate(&cfg, 1, 0).unwrap().model;
         let other = generate(&cfg, 1, 1).unwrap().model;
-        let (q, qd, tau) = dynforge_testkit::sinusoid_recording(&truth, 0, GRID_DT, 4000);
-        let names = truth.joints().iter().map(|j| j.name.clone()).collect();
-        let t = (0..4000).map(|i| i as f64 * GRID_DT).collect();
-        let p = Prepared {
+        let p = Recording {
             path: "sinusoids".into(),
             model: truth.clone(),
-            trajectory: JointTrajectory { names, t, q, qd, tau },
+            trajectory: dynforge_testkit::sinusoid_recording(&truth, 0, GRID_DT, 4000),
             labels: None,
             robot: None,
         };

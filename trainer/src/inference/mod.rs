@@ -10,7 +10,9 @@ use dynforge_robot::Model;
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::data::cache::CachedWindows;
-use crate::data::dataset::{DataError, Prepared, prepare, row_width, windows};
+use dynforge_recording::{GRID_DT, ReadError, Recording, read};
+
+use crate::data::dataset::{row_width, windows};
 use crate::data::features::JacobianFeatures;
 use crate::evaluation::torque::{normal_equations, physical_parameters, recording_error};
 use crate::model::Estimator;
@@ -21,7 +23,7 @@ pub enum InferenceError {
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
-    Data(#[from] DataError),
+    Read(#[from] ReadError),
     #[error("{file}: {problem}")]
     Recording { file: String, problem: String },
 }
@@ -79,19 +81,19 @@ impl Predictor {
     }
 
     /// Estimate of a prepared recording, checked against the checkpoint's joints and features.
-    pub fn estimate_prepared(&self, dir: &Path, p: &Prepared) -> Result<Estimate, InferenceError> {
+    pub fn estimate_prepared(&self, dir: &Path, p: &Recording) -> Result<Estimate, InferenceError> {
         let features = JacobianFeatures::new(&p.model);
         let joints: Vec<String> = p.model.joints().iter().map(|j| j.name.clone()).collect();
         self.checkpoint.check_fits(dir, &joints, &features)?;
         let spec = self.checkpoint.window_spec();
         let (count, data) = windows(p, &spec, &features);
         if count == 0 {
-            let seconds = p.trajectory.len() as f64 * crate::data::dataset::GRID_DT;
+            let seconds = p.trajectory.len() as f64 * GRID_DT;
             return Err(InferenceError::Recording {
                 file: p.path.display().to_string(),
                 problem: format!(
                     "{seconds:.3} s of motion is shorter than one window ({:.3} s = {} samples x {} ms)",
-                    spec.span(crate::data::dataset::GRID_DT),
+                    spec.span(GRID_DT),
                     spec.len,
                     spec.stride
                 ),
@@ -123,7 +125,7 @@ impl Predictor {
     /// recording's torques (least squares on the regressor) with the estimate as prior. The prior's spread per label
     /// is the network's per-robot validation RMSE from `report.json` in the checkpoint directory (written by
     /// `evaluate`), or the training labels' spread when there is none.
-    pub fn refine(&self, dir: &Path, p: &Prepared, e: &Estimate) -> Result<Refinement, InferenceError> {
+    pub fn refine(&self, dir: &Path, p: &Recording, e: &Estimate) -> Result<Refinement, InferenceError> {
         let ne = normal_equations(p)?;
         let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
         let validated = validation_rmse(dir);
@@ -148,8 +150,8 @@ impl Predictor {
         dir: &Path,
         path: &Path,
         urdf: Option<&Model>,
-    ) -> Result<(Prepared, Estimate), InferenceError> {
-        let p = prepare(path, urdf)?;
+    ) -> Result<(Recording, Estimate), InferenceError> {
+        let p = read(path, urdf)?;
         let e = self.estimate_prepared(dir, &p)?;
         Ok((p, e))
     }

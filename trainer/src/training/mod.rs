@@ -553,7 +553,7 @@ mod tests {
         impl ModuleVisitor for Collect<'_> {
             fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
                 let g = self.0.get::<D>(param.id).expect("every parameter has a gradient");
-                self.1.extend(g.into_data().to_vec::<f32>().unwrap());
+                self.1.extend(g.into_data().try_to_vec::<f32>().unwrap());
             }
         }
         let mut c = Collect(grads, Vec::new());

@@ -1,12 +1,18 @@
-//! Training while generating: picks up shards as they appear. Shards are renamed into place whole, so a listed
-//! `*.mcap` is always complete; the writers' temporary files (`.name.tmp`) are never picked up.
+//! The shards of a dataset: a run directory's `shards/` (see [`dynforge_proto::run_dir`]) or any folder of shards,
+//! listed once or followed while a generation adds them. Shards are renamed into place whole, so a listed `*.mcap`
+//! is always complete; the writers' temporary files are never picked up.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use dynforge_robot::Model;
+
+use crate::read::{ReadError, read};
+
 /// The shard directory of `dir`: a `generate` directory's `shards/`, or `dir` itself.
 pub fn shard_dir(dir: &Path) -> PathBuf {
-    if dir.join("shards").is_dir() { dir.join("shards") } else { dir.to_path_buf() }
+    let shards = dir.join(dynforge_proto::run_dir::SHARDS);
+    if shards.is_dir() { shards } else { dir.to_path_buf() }
 }
 
 /// The complete shards (`*.mcap`, not the writers' `.name.tmp` files) of `dir`'s shard directory, sorted by name.
@@ -15,7 +21,7 @@ pub fn list_shards(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     for entry in std::fs::read_dir(shard_dir(dir))? {
         let path = entry?.path();
         let name = path.file_name().map(|n| n.to_string_lossy().to_string()).unwrap_or_default();
-        if !name.starts_with('.') && name.ends_with(".mcap") {
+        if !dynforge_proto::run_dir::is_temporary(&name) && name.ends_with(".mcap") {
             out.push(path);
         }
     }
@@ -44,6 +50,25 @@ impl ShardFollower {
             Err(e) => Err(e),
         }
     }
+}
+
+/// The robot of a dataset directory: that of its first readable shard (every shard of a dataset shares the
+/// kinematics, which is all that windows and identification take from it).
+pub fn dataset_robot(dir: &Path) -> Result<Model, ReadError> {
+    let shards = shard_dir(dir);
+    let paths = list_shards(&shards)
+        .map_err(|e| ReadError::Content { file: shards.display().to_string(), problem: e.to_string() })?;
+    let mut last = None;
+    for p in &paths {
+        match read(p, None) {
+            Ok(rec) => return Ok(rec.model),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| ReadError::Content {
+        file: shards.display().to_string(),
+        problem: "no shards (generate a dataset with `dynforge generate` first)".into(),
+    }))
 }
 
 #[cfg(test)]

@@ -1,7 +1,7 @@
 //! Timestep unification: every channel linearly interpolated onto a fixed grid `t0, t0 + dt, ...` spanning the
 //! recording. Real logs are irregular and drop samples; ours are already at 1 kHz, where this is the identity.
 
-use super::source::JointTrajectory;
+use crate::samples::JointTrajectory;
 
 /// Resamples onto the grid of period `dt` starting at the first sample, up to the last sample.
 pub fn resample(traj: &JointTrajectory, dt: f64) -> JointTrajectory {

@@ -21,10 +21,12 @@ impl JointTrajectory {
         self.names.len()
     }
 
-    /// The samples as identification reads them; `dt` is the grid step of a resampled trajectory.
-    pub fn recording(&self, dt: f64) -> dynforge_identify::Recording<'_> {
-        dynforge_identify::Recording { q: &self.q, qd: &self.qd, tau: &self.tau, dof: self.joints(), dt }
+    /// Sample `i`'s positions, velocities and torques.
+    pub fn sample(&self, i: usize) -> (&[f64], &[f64], &[f64]) {
+        let r = i * self.joints()..(i + 1) * self.joints();
+        (&self.q[r.clone()], &self.qd[r.clone()], &self.tau[r])
     }
+
     pub fn len(&self) -> usize {
         self.t.len()
     }
@@ -35,7 +37,7 @@ impl JointTrajectory {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{file}: {problem}")]
-pub struct SourceError {
+pub struct SamplesError {
     pub file: String,
     pub problem: String,
 }
@@ -43,8 +45,8 @@ pub struct SourceError {
 /// The `/joint_states` of `bag` for the joints `names` (in that order), matched by name in every message. Messages
 /// must carry position, velocity and effort for each of these joints; other joints are ignored. Samples are sorted
 /// by stamp; repeated stamps keep the first message.
-pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTrajectory, SourceError> {
-    let err = |problem: String| SourceError { file: file.display().to_string(), problem };
+pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTrajectory, SamplesError> {
+    let err = |problem: String| SamplesError { file: file.display().to_string(), problem };
     if bag.joint_states.is_empty() {
         return Err(err("no sensor_msgs/msg/JointState messages on /joint_states".into()));
     }
@@ -65,7 +67,7 @@ pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTraject
             }
             last_layout = Some(&m.name[..]);
         }
-        let pick = |v: &[f64], what: &str| -> Result<Vec<f64>, SourceError> {
+        let pick = |v: &[f64], what: &str| -> Result<Vec<f64>, SamplesError> {
             if v.len() != m.name.len() {
                 return Err(err(format!(
                     "joint_states message {k}: {} {what} values for {} joints",

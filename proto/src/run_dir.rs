@@ -1,0 +1,99 @@
+//! The run directory: what `generate` writes and everyone else reads, and the one rule by which every file of the
+//! project appears on disk.
+//!
+//! ```text
+//! DIR/manifest.toml   what the dataset is (seed, sizes, generator and simulation settings, versions)
+//! DIR/ledger.tsv      one checksummed, fsync'd line per finished job (done with its shard's hash, discarded, failed)
+//! DIR/shards/         one MCAP file per kept job (schema: `crate::shard`)
+//! DIR/logs/           one log per worker slot
+//! DIR/cache/          the trainer's preprocessed windows, keyed by what determines them
+//! ```
+//!
+//! **The temporary-file rule.** A file is written to a temporary file beside it, `.NAME.PID.tmp` (hidden, named after
+//! the final file and the writing process, so concurrent writers never share one), fsync'd, renamed over `NAME`, and
+//! the directory is fsync'd: readers see the old file or the new one, whole, never a part. Readers skip temporary
+//! files ([`is_temporary`]); a crashed writer's leftovers may be removed by whoever owns the directory.
+
+use std::path::{Path, PathBuf};
+
+pub const MANIFEST: &str = "manifest.toml";
+pub const LEDGER: &str = "ledger.tsv";
+pub const SHARDS: &str = "shards";
+pub const LOGS: &str = "logs";
+pub const CACHE: &str = "cache";
+
+/// Whether a file name is a writer's temporary file (never a finished file).
+pub fn is_temporary(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
+/// The temporary file this process writes `path` through.
+pub fn temporary_path(path: &Path) -> PathBuf {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    dir.join(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Writes `bytes` to `path` by the temporary-file rule. On failure the temporary file is removed and `path` is
+/// untouched. The directory must exist.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    use std::io::Write;
+    replace_atomically(
+        path,
+        |tmp| {
+            let mut f = std::fs::File::create(tmp)?;
+            f.write_all(bytes)?;
+            f.sync_all()
+        },
+        |_, e| e,
+    )
+}
+
+/// The temporary-file rule for writers that produce the file themselves: `fill` writes (and syncs) the temporary
+/// file; it then replaces `path`, and the rename is made durable. `io` turns a rename or sync error into `E`.
+pub fn replace_atomically<T, E>(
+    path: &Path,
+    fill: impl FnOnce(&Path) -> Result<T, E>,
+    io: impl Fn(&Path, std::io::Error) -> E,
+) -> Result<T, E> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let tmp = temporary_path(path);
+    let result = fill(&tmp).and_then(|value| {
+        std::fs::rename(&tmp, path).map_err(|e| io(path, e))?;
+        std::fs::File::open(dir).and_then(|d| d.sync_all()).map_err(|e| io(dir, e))?;
+        Ok(value)
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn temporary_files_are_hidden_per_process_and_recognised() {
+        let tmp = temporary_path(Path::new("d/shards/r000001-t00-native.mcap"));
+        let name = tmp.file_name().unwrap().to_str().unwrap();
+        assert_eq!(tmp.parent().unwrap(), Path::new("d/shards"));
+        assert_eq!(name, format!(".r000001-t00-native.mcap.{}.tmp", std::process::id()));
+        assert!(is_temporary(name));
+        assert!(!is_temporary("r000001-t00-native.mcap") && !is_temporary(".hidden.mcap"));
+    }
+
+    #[test]
+    fn a_failed_write_leaves_the_old_file_and_no_temporary() {
+        let dir = std::env::temp_dir().join(format!("dynforge-run-dir-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("f");
+        write_atomic(&path, b"old").unwrap();
+        let r: Result<(), std::io::Error> =
+            replace_atomically(&path, |tmp| std::fs::write(tmp, b"half").and(Err(std::io::Error::other("full"))), |_, e| e);
+        assert!(r.is_err());
+        assert_eq!(std::fs::read(&path).unwrap(), b"old");
+        assert!(std::fs::read_dir(&dir).unwrap().all(|e| !is_temporary(&e.unwrap().file_name().to_string_lossy())));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

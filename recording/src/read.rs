@@ -1,0 +1,74 @@
+//! A recording read whole: the robot, its trajectory on the uniform grid, and the labels of a dataset shard.
+
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::shard::{META_JOB, META_LABELS};
+use dynforge_proto::{LABELS, NUM_LABELS};
+use dynforge_robot::{Model, urdf};
+
+use crate::resample::resample;
+use crate::samples::{JointTrajectory, SamplesError, from_bag};
+
+/// Period of the uniform grid recordings are put on [s]: the simulator's and the paper's 1 kHz.
+pub const GRID_DT: f64 = 1e-3;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReadError {
+    #[error(transparent)]
+    Shard(#[from] dynforge_shard::ShardError),
+    #[error(transparent)]
+    Samples(#[from] SamplesError),
+    #[error("{file}: {problem}")]
+    Content { file: String, problem: String },
+}
+
+/// A recording ready for identification and windowing: the robot, its trajectory on the [`GRID_DT`] grid, and its
+/// labels if it has them.
+#[derive(Debug, Clone)]
+pub struct Recording {
+    pub path: PathBuf,
+    pub model: Model,
+    pub trajectory: JointTrajectory,
+    /// The 38 labels (dataset shards; a user's bag has none).
+    pub labels: Option<[f64; NUM_LABELS]>,
+    /// Robot id within its dataset (shards only).
+    pub robot: Option<u64>,
+}
+
+/// Reads a shard or bag; the robot comes from its `/robot_description` unless `model` is given.
+pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
+    let file = path.display().to_string();
+    let content = |problem: String| ReadError::Content { file: file.clone(), problem };
+    let bag = dynforge_shard::read(path)?;
+    let model = match (model, &bag.robot_description) {
+        (Some(m), _) => m.clone(),
+        (None, Some(text)) => {
+            urdf::parse(text, &format!("{file} (/robot_description)")).map_err(|e| content(e.to_string()))?
+        }
+        (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
+    };
+    let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
+    let trajectory = resample(&from_bag(&bag, &names, path)?, GRID_DT);
+    let labels = match bag.metadata.get(META_LABELS) {
+        Some(map) => {
+            let mut y = [0.0; NUM_LABELS];
+            for (v, l) in y.iter_mut().zip(LABELS.iter()) {
+                *v = map
+                    .get(l.name)
+                    .and_then(|s| s.parse().ok())
+                    .ok_or_else(|| content(format!("label {} missing", l.name)))?;
+            }
+            Some(y)
+        }
+        None => None,
+    };
+    let robot = bag.metadata.get(META_JOB).and_then(|m| m.get("robot")).and_then(|r| r.parse().ok());
+    Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot })
+}
+
+impl Recording {
+    /// Seconds of motion on the grid.
+    pub fn seconds(&self) -> f64 {
+        self.trajectory.len() as f64 * GRID_DT
+    }
+}
