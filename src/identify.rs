@@ -6,8 +6,8 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_identify::{NormalEquations, calibrate};
 use dynforge_proto::LABELS;
-use dynforge_robot::urdf;
 use dynforge_recording::read;
+use dynforge_robot::urdf;
 
 #[derive(Args)]
 pub struct IdentifyArgs {

@@ -1,8 +1,12 @@
 //! The `dynforge` command line: parses arguments and dispatches to the library crates.
 
 mod dataset;
+mod estimate;
+mod evaluate;
 mod generate;
 mod identify;
+mod pipeline;
+mod progress;
 mod robot;
 mod simulate;
 mod sweep;
@@ -39,17 +43,18 @@ enum Command {
     /// Inspect a dataset of shards.
     #[command(subcommand)]
     Dataset(dataset::DatasetCommand),
-    /// Train the transformer estimator on a dataset (checkpoint every epoch; Ctrl-C saves, --resume continues).
+    /// Train an estimator on a dataset: physics-informed (default) or the paper's transformer (checkpoint every
+    /// epoch; Ctrl-C saves, --resume continues).
     Train(train::TrainArgs),
     /// Score a checkpoint on its validation robots: the paper's tables, per-robot scores, the torque check and
     /// the identification check (network, physics and hybrid side by side).
-    Evaluate(train::EvaluateArgs),
+    Evaluate(evaluate::EvaluateArgs),
     /// Estimate a robot's parameters from a recording (shard or ROS 2 bag), refined by physics, and write its URDF.
-    Estimate(train::EstimateArgs),
+    Estimate(estimate::EstimateArgs),
     /// Calibrate a robot's URDF to its logs by physics alone (least squares on the regressor, no network).
     Identify(identify::IdentifyArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
-    Pipeline(train::PipelineArgs),
+    Pipeline(pipeline::PipelineArgs),
     /// Run the paper's dataset and architecture grids at a chosen scale and write both tables.
     Sweep(sweep::SweepArgs),
     /// A worker process (started by `generate`).
@@ -72,11 +77,11 @@ fn main() -> std::process::ExitCode {
         Command::Verify(args) => generate::verify(args),
         Command::Worker(args) => generate::worker(args),
         Command::Dataset(cmd) => dataset::run(cmd),
-        Command::Train(args) => train::train_command(args),
-        Command::Evaluate(args) => train::evaluate_command(args),
-        Command::Estimate(args) => train::estimate_command(args),
+        Command::Train(args) => train::run(args),
+        Command::Evaluate(args) => evaluate::run(args),
+        Command::Estimate(args) => estimate::run(args),
         Command::Identify(args) => identify::run(args),
-        Command::Pipeline(args) => train::pipeline_command(args),
+        Command::Pipeline(args) => pipeline::run(args),
         Command::Sweep(args) => sweep::run(args),
     };
     match result {

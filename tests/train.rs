@@ -15,7 +15,9 @@ fn ok(o: std::process::Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
-const SMALL: [&str; 14] = [
+const SMALL: [&str; 16] = [
+    "--model",
+    "transformer",
     "--preset",
     "fast",
     "--layers",
@@ -119,7 +121,8 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     assert_eq!(v["parameters"].as_object().unwrap().len(), 38);
     // Refined by physics: the log's own torques are explained far better than by the network alone.
     let r = &v["refinement"];
-    let (refined, network) = (r["torque_nrmse_refined"].as_f64().unwrap(), r["torque_nrmse_network"].as_f64().unwrap());
+    let (refined, network) =
+        (r["torque_nrmse_refined"].as_f64().unwrap(), r["torque_nrmse_estimator"].as_f64().unwrap());
     assert!(refined < 1e-2 && refined < network, "{r}");
     let plain = ok(dynforge(&[
         "estimate",
@@ -135,8 +138,11 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     assert!(plain["refinement"].is_null());
     for l in dynforge_proto::LABELS.iter() {
         let p = &plain["parameters"][l.name];
-        assert_eq!(p["value"], p["network"], "{}", l.name);
-        assert_eq!(p["network"], v["parameters"][l.name]["network"], "{}", l.name);
+        let projected = plain["projections"].as_array().unwrap().iter().any(|n| n.as_str().unwrap().contains(l.name));
+        // Unprojected values pass through the URDF's inertia about the joint frame and back: equal to rounding.
+        let (value, estimator) = (p["value"].as_f64().unwrap(), p["estimator"].as_f64().unwrap());
+        assert!(projected || (value - estimator).abs() <= 1e-9 * estimator.abs().max(1e-9), "{}: {p}", l.name);
+        assert_eq!(p["estimator"], v["parameters"][l.name]["estimator"], "{}", l.name);
     }
     let model = dynforge_robot::urdf::load(&urdf).unwrap();
     let y = dynforge_robot::parameters::labels(&model).unwrap();
@@ -266,4 +272,81 @@ fn sweep_runs_both_grids_and_names_the_configurations_a_dataset_cannot_serve() {
         };
         assert_eq!(scores(&first), scores(&again), "{grid}");
     }
+}
+
+#[test]
+fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let run = dir.path().join("run");
+    let d = data.to_str().unwrap();
+    ok(dynforge(&["generate", "--out", d, "--robots", "6", "--trajectories", "3", "--workers", "2", "--seed", "7"]));
+    let small = ["--epochs", "2", "--generated", "4096", "--dim", "64", "--validation", "0.34"];
+    let mut args = vec!["train", d, "--out", run.to_str().unwrap()];
+    args.extend(small);
+    ok(dynforge(&args));
+    let ck: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
+    assert_eq!(ck["model"]["kind"], "physics", "the default estimator");
+    // The generator's prior: 72 parameters, 30 directions.
+    assert_eq!(ck["prior"]["mean"].as_array().unwrap().len(), 72);
+    assert_eq!(ck["prior"]["factor"].as_array().unwrap().len(), 72 * 30);
+
+    let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "3", "--identify-robots", "2"]));
+    assert!(out.contains("Overall") && out.contains("Per robot") && out.contains("Identification"), "{out}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["windows"]["targets"].as_array().unwrap().len(), 38);
+
+    // A validation robot's recording: the estimate, refined by its torques, carries the true friction (friction
+    // has regressor columns of its own) and is what the URDF gets.
+    let validation_shard = std::fs::read_dir(data.join("shards"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| {
+            let r = dynforge_proto::shard::robot_of_file_name(p.file_name().unwrap().to_str().unwrap()).unwrap();
+            let (seed, fraction) = (0, 0.34);
+            dynforge_trainer::data::split::split_of(seed, r, fraction)
+                == dynforge_trainer::data::split::Split::Validation
+        })
+        .expect("a validation robot");
+    let urdf = dir.path().join("estimated.urdf");
+    let out = ok(dynforge(&[
+        "estimate",
+        "--checkpoint",
+        run.to_str().unwrap(),
+        validation_shard.to_str().unwrap(),
+        "--out",
+        urdf.to_str().unwrap(),
+        "--json",
+    ]));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let refined = v["refinement"]["torque_nrmse_refined"].as_f64().unwrap();
+    assert!(refined < 1e-2, "{v}");
+    let truth = dynforge_recording::read(&validation_shard, None).unwrap().labels.unwrap();
+    let model = dynforge_robot::urdf::load(&urdf).unwrap();
+    let written = dynforge_robot::parameters::labels(&model).unwrap();
+    let mut friction_errors = Vec::new();
+    for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
+        let value = v["parameters"][l.name]["value"].as_f64().unwrap();
+        assert_eq!(value, written[k], "{}: reported values are the URDF's", l.name);
+        if matches!(l.kind, dynforge_proto::LabelKind::Coulomb | dynforge_proto::LabelKind::Viscous) {
+            friction_errors.push((value - truth[k]).abs() / truth[k]);
+        }
+    }
+    friction_errors.sort_by(f64::total_cmp);
+    assert!(friction_errors[6] < 0.02, "median relative friction error {friction_errors:?}");
+
+    // What the physics estimator cannot do is refused with the reason: following a generation, a folder of shards
+    // without the generator's manifest.
+    let (f, g) = (dir.path().join("f"), dir.path().join("g"));
+    let mut follow = vec!["train", d, "--out", f.to_str().unwrap(), "--follow"];
+    follow.extend(small);
+    let o = dynforge(&follow);
+    assert!(!o.status.success() && stderr(&o).contains("--follow trains the transformer"), "{}", stderr(&o));
+    let loose = dir.path().join("loose");
+    std::fs::create_dir(&loose).unwrap();
+    std::fs::copy(&validation_shard, loose.join(validation_shard.file_name().unwrap())).unwrap();
+    let mut bare = vec!["train", loose.to_str().unwrap(), "--out", g.to_str().unwrap()];
+    bare.extend(small);
+    let o = dynforge(&bare);
+    assert!(!o.status.success() && stderr(&o).contains("manifest"), "{}", stderr(&o));
 }

@@ -2,7 +2,7 @@
 //! runs it beside the same model in PyTorch.
 
 use anyhow::{Context, Result, bail};
-use dynforge_trainer::model::Preset;
+use dynforge_trainer::model::{NetworkConfig, Preset};
 use dynforge_trainer::training::{TrainConfig, synthetic_throughput};
 
 #[global_allocator]
@@ -34,7 +34,7 @@ fn main() -> Result<()> {
     }
     .config(inputs, seq_len);
     eprintln!("burn: {} parameters", cfg.parameters());
-    let rate = synthetic_throughput(&cfg, batch, micro_batches, steps, 3, 0)?;
+    let rate = synthetic_throughput(&NetworkConfig::Transformer(cfg), batch, micro_batches, steps, 3, 0)?;
     let seconds = (steps * batch) as f64 / rate;
     println!(
         "{{\"framework\":\"burn\",\"preset\":\"{preset}\",\"micro_batches\":{micro_batches},\"windows_per_second\":{rate:.2},\"steps\":{steps},\"seconds\":{seconds:.3}}}"

@@ -12,7 +12,6 @@ use crate::ledger::{self, Status};
 use crate::manifest::Manifest;
 use crate::plan;
 
-
 /// What `verify` found.
 #[derive(Debug, Default, Clone, PartialEq)]
 pub struct Report {

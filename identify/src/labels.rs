@@ -34,11 +34,48 @@ pub fn label_parameters(template: &Model, y: &[f64; NUM_LABELS]) -> Vec<f64> {
     pi
 }
 
+/// The 38 labels of a full parameter vector `pi` (6 joints): per link the mass, the COM along the link axis and the
+/// moments about the COM, per joint the friction pair. Pure arithmetic, no physical check: `pi` may be any point of
+/// parameter space, e.g. a posterior mean (a mass at or below zero gives a non-finite or meaningless COM).
+pub fn parameter_labels(pi: &[f64]) -> [f64; NUM_LABELS] {
+    let ni = dynforge_proto::params::INERTIAL_PARAMS_PER_LINK;
+    let nf = dynforge_proto::params::FRICTION_PARAMS_PER_JOINT;
+    let friction = ni * 6;
+    std::array::from_fn(|k| {
+        let l = &LABELS[k];
+        match l.kind {
+            LabelKind::Coulomb => pi[friction + nf * l.index],
+            LabelKind::Viscous => pi[friction + nf * l.index + 1],
+            kind => {
+                let p: [f64; 10] = pi[ni * (l.index - 1)..ni * l.index].try_into().expect("10 parameters per link");
+                let inertia = Inertia::from_params(&p);
+                match kind {
+                    LabelKind::Mass => inertia.mass,
+                    LabelKind::Com => inertia.com().z,
+                    LabelKind::Ixx => inertia.i_com()[(0, 0)],
+                    LabelKind::Iyy => inertia.i_com()[(1, 1)],
+                    _ => inertia.i_com()[(2, 2)],
+                }
+            }
+        }
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use dynforge_robot::generator::{GeneratorConfig, generate};
     use dynforge_robot::parameters::{labels, with_labels};
+
+    #[test]
+    fn labels_of_a_robots_parameters_are_its_labels() {
+        for id in 0..5 {
+            let a = generate(&GeneratorConfig::default(), 3, id).unwrap().model;
+            for (x, y) in parameter_labels(&dynamic_parameters(&a)).iter().zip(labels(&a).unwrap()) {
+                assert!((x - y).abs() <= 1e-12 * y.abs().max(1e-9), "{x} vs {y}");
+            }
+        }
+    }
 
     #[test]
     fn a_robots_own_labels_give_back_its_parameters() {

@@ -54,7 +54,8 @@ impl ParameterPrior {
         let sd: Vec<f64> = (0..p).map(|c| cov[(c, c)].max(0.0).sqrt()).collect();
         let scale = sd.iter().fold(0.0f64, |a, &b| a.max(b));
         let sd: Vec<f64> = sd.iter().map(|&s| if s > 1e-12 * scale { s } else { 0.0 }).collect();
-        let corr = DMatrix::from_fn(p, p, |i, j| if sd[i] > 0.0 && sd[j] > 0.0 { cov[(i, j)] / (sd[i] * sd[j]) } else { 0.0 });
+        let corr =
+            DMatrix::from_fn(p, p, |i, j| if sd[i] > 0.0 && sd[j] > 0.0 { cov[(i, j)] / (sd[i] * sd[j]) } else { 0.0 });
         let (u, lam) = eigen(&corr)?;
         let largest = lam.iter().fold(0.0f64, |a, &b| a.max(b));
         let keep: Vec<usize> = (0..p).filter(|&k| lam[k] > PRIOR_RANK_TOLERANCE * largest).collect();
@@ -77,10 +78,29 @@ impl ParameterPrior {
         &self.mean
     }
 
+    /// `L`, row-major (`parameters x rank`).
+    pub fn factor(&self) -> &[f64] {
+        &self.factor
+    }
+
+    /// A prior from its mean and row-major factor (as [`Self::mean`] and [`Self::factor`] give them), e.g. read back
+    /// from a checkpoint; `None` if the sizes disagree or a value is not finite.
+    pub fn from_parts(mean: Vec<f64>, factor: Vec<f64>) -> Option<Self> {
+        let p = mean.len();
+        let rank = factor.len().checked_div(p)?;
+        (rank * p == factor.len() && mean.iter().chain(&factor).all(|v| v.is_finite())).then_some(ParameterPrior {
+            mean,
+            factor,
+            rank,
+        })
+    }
+
     /// The parameter vector at coordinates `z`: `mean + L z`.
     pub fn parameters(&self, z: &[f64]) -> Vec<f64> {
         let r = self.rank;
-        (0..self.mean.len()).map(|c| self.mean[c] + (0..r).map(|k| self.factor[c * r + k] * z[k]).sum::<f64>()).collect()
+        (0..self.mean.len())
+            .map(|c| self.mean[c] + (0..r).map(|k| self.factor[c * r + k] * z[k]).sum::<f64>())
+            .collect()
     }
 
     /// The coordinates whose parameters are closest to `pi` (least squares; exact for a member of the family).
@@ -179,6 +199,9 @@ pub struct Posterior {
     pub mean: Vec<f64>,
     /// Diagonal of the posterior covariance (each at most 1, the prior's).
     pub variance: Vec<f64>,
+    /// Correlations of the coordinates, the strict upper triangle row by row (`r (r - 1) / 2` values): which
+    /// combinations of coordinates the data leave uncertain, beyond each one's variance.
+    pub correlation: Vec<f64>,
 }
 
 impl Evidence {
@@ -191,6 +214,12 @@ impl Evidence {
         Evidence { rank, h: h.to_vec(), b }
     }
 
+    /// Adds independent evidence (e.g. another recording's) about the same coordinates.
+    pub fn add(&mut self, other: &Evidence) {
+        self.h.iter_mut().zip(&other.h).for_each(|(x, y)| *x += y);
+        self.b.iter_mut().zip(&other.b).for_each(|(x, y)| *x += y);
+    }
+
     fn unpack(r: usize, h: &[f64]) -> DMatrix<f64> {
         DMatrix::from_fn(r, r, |i, j| h[packed(r, i.min(j), i.max(j))])
     }
@@ -201,8 +230,15 @@ impl Evidence {
         let m = DMatrix::identity(r, r) + Self::unpack(r, &self.h);
         let chol = m.cholesky().ok_or(IdentifyError::Decomposition)?;
         let mean = chol.solve(&DVector::from_column_slice(&self.b)).iter().copied().collect();
-        let variance = chol.inverse().diagonal().iter().copied().collect();
-        Ok(Posterior { mean, variance })
+        let cov = chol.inverse();
+        let variance: Vec<f64> = cov.diagonal().iter().copied().collect();
+        let mut correlation = Vec::with_capacity(r * r.saturating_sub(1) / 2);
+        for i in 0..r {
+            for j in i + 1..r {
+                correlation.push(cov[(i, j)] / (variance[i] * variance[j]).sqrt());
+            }
+        }
+        Ok(Posterior { mean, variance, correlation })
     }
 }
 
@@ -247,10 +283,9 @@ pub fn latent_blocks(
             let e = tau[j] - predicted;
             let s = &mut sums.joints[j];
             let mut at = 0;
-            for a in 0..r {
-                let ua = u[a];
-                for b in a..r {
-                    s.uu[at] += ua * u[b];
+            for (a, &ua) in u.iter().enumerate() {
+                for &ub in &u[a..] {
+                    s.uu[at] += ua * ub;
                     at += 1;
                 }
                 s.ue[a] += ua * e;
@@ -312,13 +347,13 @@ mod tests {
             let h: Vec<f64> = base.iter().map(|x| x * s).collect();
             let post = Evidence::noiseless(r, &h, &z).posterior().unwrap();
             // Shrinkage (I + H)^-1 H z differs from z by O(1 / s).
-            for k in 0..r {
-                assert!((post.mean[k] - z[k]).abs() < 5.0 / s, "s {s}: {:?}", post.mean);
-                assert!(post.variance[k] > 0.0 && post.variance[k] <= 1.0);
+            for ((m, v), zk) in post.mean.iter().zip(&post.variance).zip(z) {
+                assert!((m - zk).abs() < 5.0 / s, "s {s}: {:?}", post.mean);
+                assert!(*v > 0.0 && *v <= 1.0);
             }
         }
         // No evidence: the prior itself.
         let none = Evidence { rank: r, h: vec![0.0; packed_len(r)], b: vec![0.0; r] }.posterior().unwrap();
-        assert_eq!(none, Posterior { mean: vec![0.0; r], variance: vec![1.0; r] });
+        assert_eq!(none, Posterior { mean: vec![0.0; r], variance: vec![1.0; r], correlation: vec![0.0; 3] });
     }
 }

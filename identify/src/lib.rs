@@ -24,7 +24,7 @@ mod samples;
 mod solve;
 
 pub use calibrate::{Calibration, calibrate};
-pub use labels::label_parameters;
+pub use labels::{label_parameters, parameter_labels};
 pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};

@@ -46,7 +46,12 @@ impl NormalEquations {
     }
 
     /// Adds the moving samples `range` of `traj` (e.g. a window's).
-    pub fn add_range(&mut self, model: &Model, traj: &JointTrajectory, range: std::ops::Range<usize>) -> Result<(), IdentifyError> {
+    pub fn add_range(
+        &mut self,
+        model: &Model,
+        traj: &JointTrajectory,
+        range: std::ops::Range<usize>,
+    ) -> Result<(), IdentifyError> {
         let n = self.dof;
         if model.dof() != n || traj.joints() != n {
             return Err(IdentifyError::Dof(traj.joints().min(model.dof()), n));

@@ -89,8 +89,11 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("f");
         write_atomic(&path, b"old").unwrap();
-        let r: Result<(), std::io::Error> =
-            replace_atomically(&path, |tmp| std::fs::write(tmp, b"half").and(Err(std::io::Error::other("full"))), |_, e| e);
+        let r: Result<(), std::io::Error> = replace_atomically(
+            &path,
+            |tmp| std::fs::write(tmp, b"half").and(Err(std::io::Error::other("full"))),
+            |_, e| e,
+        );
         assert!(r.is_err());
         assert_eq!(std::fs::read(&path).unwrap(), b"old");
         assert!(std::fs::read_dir(&dir).unwrap().all(|e| !is_temporary(&e.unwrap().file_name().to_string_lossy())));

@@ -6,6 +6,7 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use dynforge_robot::Model;
+use dynforge_robot::generator::GeneratorConfig;
 
 use crate::read::{ReadError, read};
 
@@ -50,6 +51,27 @@ impl ShardFollower {
             Err(e) => Err(e),
         }
     }
+}
+
+/// What a run directory's manifest says about the robots: the generator configuration and the dataset seed.
+/// `None` for a folder of shards without a manifest (not a `generate` directory).
+pub fn generator(dir: &Path) -> Result<Option<(GeneratorConfig, u64)>, ReadError> {
+    #[derive(serde::Deserialize)]
+    struct Robots {
+        seed: u64,
+        generator: GeneratorConfig,
+    }
+    let path = dir.join(dynforge_proto::run_dir::MANIFEST);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(ReadError::Content { file: path.display().to_string(), problem: e.to_string() }),
+    };
+    let m: Robots = toml::from_str(&text).map_err(|e| ReadError::Content {
+        file: path.display().to_string(),
+        problem: format!("not a run manifest with a [generator] table: {e}"),
+    })?;
+    Ok(Some((m.generator, m.seed)))
 }
 
 /// The robot of a dataset directory: that of its first readable shard (every shard of a dataset shares the

@@ -73,6 +73,10 @@ pub fn with_dynamic_parameters(model: &Model, pi: &[f64]) -> Result<Model, Model
 /// Smallest mass [kg] and principal moment [kg m^2] an estimate is projected up to.
 const MIN_MASS: f64 = 1e-3;
 const MIN_MOMENT: f64 = 1e-7;
+/// A moment projected onto the triangle inequality lands this fraction inside it, not on it: written in decimal and
+/// read back, a moment exactly equal to the sum of the other two can come out above it by a rounding, and loaders
+/// (MuJoCo) refuse such a body.
+pub const TRIANGLE_MARGIN: f64 = 1e-6;
 
 /// A copy of the 6-joint `model` carrying the 38 labels `y` (e.g. a network's estimate). What the labels do not
 /// cover is kept from `model`: the COM's x and y, products of inertia, and link 1's mass, COM and Ixx, Iyy (which
@@ -109,25 +113,38 @@ pub fn with_labels(model: &Model, y: &[f64; NUM_LABELS]) -> Result<(Model, Vec<S
     // Link 1 carries only Izz: its unlabelled Ixx, Iyy (no effect on the dynamics) grow to keep it physical.
     let i1 = &mut i_com[0];
     let (sum, izz) = (i1[(0, 0)] + i1[(1, 1)], i1[(2, 2)]);
-    if izz > sum {
-        let scale = izz / sum;
+    if izz > sum * (1.0 - TRIANGLE_MARGIN) {
+        let scale = izz / (sum * (1.0 - 2.0 * TRIANGLE_MARGIN));
         i1[(0, 0)] *= scale;
         i1[(1, 1)] *= scale;
     }
+    // With the moments sorted a >= b >= c only a <= b + c can fail. Lowering a onto b + c (less the margin) keeps
+    // it the largest unless c is tiny next to b, so a near-zero c is first raised to 2 b x margin.
     for (link, i) in i_com.iter_mut().enumerate() {
-        for a in 0..3 {
-            let others = i[((a + 1) % 3, (a + 1) % 3)] + i[((a + 2) % 3, (a + 2) % 3)];
-            if i[(a, a)] > others {
-                notes.push(format!(
-                    "{}_l{} = {:.4e} kg m^2 lowered to {others:.4e}, the sum of the other two moments of link {} \
-                     (triangle inequality)",
-                    ["ixx", "iyy", "izz"][a],
-                    link + 1,
-                    i[(a, a)],
-                    link + 1
-                ));
-                i[(a, a)] = others;
-            }
+        let mut axes = [0, 1, 2];
+        axes.sort_by(|&p, &q| i[(q, q)].total_cmp(&i[(p, p)]));
+        let [a, b, c] = axes;
+        let name = |axis: usize| format!("{}_l{}", ["ixx", "iyy", "izz"][axis], link + 1);
+        if i[(c, c)] < 2.0 * TRIANGLE_MARGIN * i[(b, b)] {
+            let raised = 2.0 * TRIANGLE_MARGIN * i[(b, b)];
+            notes.push(format!(
+                "{} = {:.4e} kg m^2 raised to {raised:.4e} so that link {} can satisfy the triangle inequality",
+                name(c),
+                i[(c, c)],
+                link + 1
+            ));
+            i[(c, c)] = raised;
+        }
+        let others = (i[(b, b)] + i[(c, c)]) * (1.0 - TRIANGLE_MARGIN);
+        if i[(a, a)] > others {
+            notes.push(format!(
+                "{} = {:.4e} kg m^2 lowered to {others:.4e}, just inside the sum of the other two moments of link {} \
+                 (triangle inequality)",
+                name(a),
+                i[(a, a)],
+                link + 1
+            ));
+            i[(a, a)] = others;
         }
     }
     let inertials: Vec<Inertial> =

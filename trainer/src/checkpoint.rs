@@ -1,7 +1,8 @@
 //! A self-contained checkpoint directory: everything inference needs to turn a recording into parameters.
 //!
 //! ```text
-//! checkpoint.json      architecture, window geometry, joint names, feature list, standardisation statistics
+//! checkpoint.json      estimator and architecture, window geometry, joint names, inputs (the transformer's feature
+//!                      list; the physics estimator's parameter prior), standardisation statistics
 //! model.safetensors    weights of the best validation epoch (the export format; names are module paths)
 //! train/               resume state: last weights (burnpack, keeps parameter ids), optimizer state, progress
 //! ```
@@ -20,10 +21,12 @@ use serde::{Deserialize, Serialize};
 use crate::data::features::JacobianFeatures;
 use crate::data::normalize::Standardizer;
 use crate::data::window::WindowSpec;
-use crate::model::{Estimator, ModelConfig};
+use dynforge_identify::ParameterPrior;
+
+use crate::model::{Network, NetworkConfig};
 
 /// Version of the checkpoint layout; readers refuse others.
-pub const FORMAT: &str = "dynforge-checkpoint/1";
+pub const FORMAT: &str = "dynforge-checkpoint/2";
 pub const CONFIG_FILE: &str = "checkpoint.json";
 pub const WEIGHTS_FILE: &str = "model.safetensors";
 
@@ -53,12 +56,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Checkpoint {
     pub format: String,
-    pub model: ModelConfig,
+    pub model: NetworkConfig,
+    /// The window geometry: the transformer's input; the physics estimator's unit of the paper's protocol.
     pub window: [usize; 3],
     /// Joint names of the robots trained on, in model order (a recording's joints are matched by these names).
     pub joints: Vec<String>,
-    /// Jacobian feature names, in column order after q, qd, tau.
+    /// Jacobian feature names, in column order after q, qd, tau (transformer; empty for physics).
     pub features: Vec<String>,
+    /// The generator's parameter prior the physics estimator reads evidence against (`None` for the transformer).
+    #[serde(default)]
+    pub prior: Option<PriorRecord>,
     /// Kept input columns and their standardisation.
     pub columns: Vec<usize>,
     pub mean: Vec<f64>,
@@ -76,12 +83,30 @@ pub struct Checkpoint {
     pub validation_loss: Option<f64>,
 }
 
+/// A [`ParameterPrior`] as stored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PriorRecord {
+    pub mean: Vec<f64>,
+    /// Row-major, parameters x rank.
+    pub factor: Vec<f64>,
+}
+
+impl PriorRecord {
+    pub fn new(p: &ParameterPrior) -> Self {
+        PriorRecord { mean: p.mean().to_vec(), factor: p.factor().to_vec() }
+    }
+
+    pub fn prior(&self) -> Option<ParameterPrior> {
+        ParameterPrior::from_parts(self.mean.clone(), self.factor.clone())
+    }
+}
+
 impl Checkpoint {
     pub fn new(
-        model: ModelConfig,
+        model: NetworkConfig,
         spec: &WindowSpec,
         joints: Vec<String>,
-        features: &JacobianFeatures,
+        features: Option<&JacobianFeatures>,
         s: &Standardizer,
     ) -> Self {
         Checkpoint {
@@ -89,7 +114,8 @@ impl Checkpoint {
             model,
             window: [spec.len, spec.stride, spec.ssr],
             joints,
-            features: features.entries.iter().map(|e| e.name.clone()).collect(),
+            features: features.map_or(Vec::new(), |f| f.entries.iter().map(|e| e.name.clone()).collect()),
+            prior: None,
             columns: s.columns.clone(),
             mean: s.mean.clone(),
             std: s.std.clone(),
@@ -118,6 +144,11 @@ impl Checkpoint {
         }
     }
 
+    /// The parameter prior of a physics checkpoint.
+    pub fn parameter_prior(&self) -> Option<ParameterPrior> {
+        self.prior.as_ref().and_then(PriorRecord::prior)
+    }
+
     /// Refuses a recording whose robot or features differ from the training ones, naming the first difference.
     pub fn check_fits(
         &self,
@@ -128,6 +159,10 @@ impl Checkpoint {
         let mismatch = |problem: String| CheckpointError::Mismatch { checkpoint: dir.display().to_string(), problem };
         if joints != self.joints.as_slice() {
             return Err(mismatch(format!("joints are {joints:?}, the model was trained on {:?}", self.joints)));
+        }
+        if matches!(self.model, NetworkConfig::Physics(_)) {
+            // Physics reads the torques through the robot's own kinematics; the joints are all it must share.
+            return Ok(());
         }
         let names: Vec<&str> = features.entries.iter().map(|e| e.name.as_str()).collect();
         if names != self.features.iter().map(String::as_str).collect::<Vec<_>>() {
@@ -152,7 +187,7 @@ impl Checkpoint {
     }
 
     /// Writes the weights, then `checkpoint.json`, into `dir`.
-    pub fn save(&self, dir: &Path, model: &Estimator) -> Result<(), CheckpointError> {
+    pub fn save(&self, dir: &Path, model: &Network) -> Result<(), CheckpointError> {
         let mut store = SafetensorsStore::from_bytes(None);
         model.save_into(&mut store).map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
         let bytes = store.get_bytes().map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
@@ -181,19 +216,22 @@ impl Checkpoint {
         if c.labels != names || c.label_mean.len() != NUM_LABELS || c.label_std.len() != NUM_LABELS {
             return Err(file_error(&path, "its labels are not this dynforge's 38 labels"));
         }
-        let consistent = c.columns.len() == c.mean.len()
-            && c.columns.len() == c.std.len()
-            && c.model.inputs == c.columns.len()
-            && c.model.seq_len == c.window[0];
-        if !consistent {
-            return Err(file_error(&path, "inconsistent columns, statistics and model inputs"));
+        let inputs = match &c.model {
+            NetworkConfig::Transformer(m) => m.seq_len == c.window[0] && m.inputs == c.columns.len(),
+            NetworkConfig::Physics(m) => {
+                c.parameter_prior().is_some_and(|p| crate::data::physics::feature_width(p.rank()) == m.inputs)
+                    && m.inputs == c.columns.len()
+            }
+        };
+        if !(inputs && c.columns.len() == c.mean.len() && c.columns.len() == c.std.len()) {
+            return Err(file_error(&path, "inconsistent columns, statistics, prior and model inputs"));
         }
         c.model.check()?;
         Ok(c)
     }
 
     /// Reads a checkpoint and its weights.
-    pub fn load(dir: &Path, device: &Device) -> Result<(Checkpoint, Estimator), CheckpointError> {
+    pub fn load(dir: &Path, device: &Device) -> Result<(Checkpoint, Network), CheckpointError> {
         let c = Checkpoint::read(dir)?;
         let path: PathBuf = dir.join(WEIGHTS_FILE);
         let bytes = std::fs::read(&path).map_err(|e| file_error(&path, e))?;

@@ -7,6 +7,8 @@ pub mod checkpoint;
 pub mod data;
 pub mod evaluation;
 pub mod inference;
+pub mod metrics;
 pub mod model;
 mod parallel;
+pub mod sweep;
 pub mod training;

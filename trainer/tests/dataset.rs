@@ -3,9 +3,9 @@
 mod common;
 
 use common::write_shard;
+use dynforge_recording::read;
 use dynforge_robot::Data;
 use dynforge_robot::parameters::labels;
-use dynforge_recording::read;
 use dynforge_trainer::data::dataset::{row_width, stats, windows};
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;

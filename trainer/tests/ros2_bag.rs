@@ -6,8 +6,8 @@ mod common;
 
 use common::write_shard;
 use dynforge_proto::shard::JOINT_STATE_DEFINITION;
-use dynforge_robot::rng::Rng;
 use dynforge_recording::read;
+use dynforge_robot::rng::Rng;
 use dynforge_trainer::data::dataset::windows;
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;

@@ -12,7 +12,7 @@ use dynforge_trainer::data::cache::CachedWindows;
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::normalize::Standardizer;
 use dynforge_trainer::data::window::WindowSpec;
-use dynforge_trainer::model::ModelConfig;
+use dynforge_trainer::model::{NetworkConfig, TransformerConfig};
 use dynforge_trainer::training::{Corpus, EpochMetrics, TrainConfig, TrainObserver, predict, train};
 
 const LEN: usize = 8;
@@ -44,13 +44,26 @@ fn corpus(n: usize, seed: u64) -> Corpus {
     Corpus { windows, train: all.clone(), validation: all, standardizer }
 }
 
-fn small_model() -> ModelConfig {
-    ModelConfig { inputs: WIDTH, seq_len: LEN, layers: 1, heads: 2, d_model: 32, d_ff: 64, patch: 2, dropout: 0.0 }
+fn small_model() -> TransformerConfig {
+    TransformerConfig {
+        inputs: WIDTH,
+        seq_len: LEN,
+        layers: 1,
+        heads: 2,
+        d_model: 32,
+        d_ff: 64,
+        patch: 2,
+        dropout: 0.0,
+    }
 }
 
-fn checkpoint(c: &Corpus, model: ModelConfig) -> Checkpoint {
+const SHAPE: [usize; 2] = [LEN, WIDTH];
+
+fn checkpoint(c: &Corpus, model: TransformerConfig) -> Checkpoint {
     let robot = dynforge_robot::generator::generate(&Default::default(), 0, 0).unwrap().model;
-    let mut ck = Checkpoint::new(model, &c.windows.spec, vec![], &JacobianFeatures::new(&robot), &c.standardizer);
+    let features = JacobianFeatures::new(&robot);
+    let mut ck =
+        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, vec![], Some(&features), &c.standardizer);
     ck.validation_fraction = 0.5;
     ck
 }
@@ -90,14 +103,14 @@ fn saved_and_loaded_checkpoints_predict_identically() {
     let dir = tempfile::tempdir().unwrap();
     let device = Device::default();
     let cfg = small_model();
-    let model = cfg.init(&device).unwrap();
+    let model = NetworkConfig::Transformer(cfg.clone()).init(&device).unwrap();
     let ck = checkpoint(&c, cfg);
     ck.save(dir.path(), &model).unwrap();
     let (back, loaded) = Checkpoint::load(dir.path(), &device).unwrap();
     assert_eq!(back, ck);
     let x: Vec<f32> = (0..6).flat_map(|i| c.standardizer.inputs(&c.windows, i)).collect();
-    let a = predict(&model, &x, 6, LEN, WIDTH, &device);
-    let b = predict(&loaded, &x, 6, LEN, WIDTH, &device);
+    let a = predict(&model, &x, 6, SHAPE, &device);
+    let b = predict(&loaded, &x, 6, SHAPE, &device);
     assert_eq!(a, b);
     assert!(a.iter().flatten().any(|v| *v != 0.0));
     // A damaged weights file is an error naming it, not a panic.
@@ -126,7 +139,7 @@ impl TrainObserver for StopAt<'_> {
 #[test]
 fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let model = ModelConfig { dropout: 0.1, ..small_model() };
+    let model = TransformerConfig { dropout: 0.1, ..small_model() };
     let cfg = TrainConfig { epochs: 3, batch: 4, lr: 2e-3, ..TrainConfig::default() };
     let whole = tempfile::tempdir().unwrap();
     let mut c = corpus(12, 3);
@@ -148,7 +161,7 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     let (_, m1) = Checkpoint::load(whole.path(), &device).unwrap();
     let (_, m2) = Checkpoint::load(parts.path(), &device).unwrap();
     let x: Vec<f32> = (0..12).flat_map(|i| c.standardizer.inputs(&c.windows, i)).collect();
-    assert_eq!(predict(&m1, &x, 12, LEN, WIDTH, &device), predict(&m2, &x, 12, LEN, WIDTH, &device));
+    assert_eq!(predict(&m1, &x, 12, SHAPE, &device), predict(&m2, &x, 12, SHAPE, &device));
     assert_eq!(a.history.len(), 3);
 }
 
@@ -197,8 +210,9 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     let (train0, val0) = (c.train.len(), c.validation.len());
     assert!(train0 > 0 && val0 > 0);
     c.standardizer = Standardizer::fit(&c.windows, &c.train);
-    let model = ModelConfig { inputs: c.standardizer.columns.len(), seq_len: 8, ..small_model() };
-    let ck = Checkpoint::new(model, &c.windows.spec, vec![], &features, &c.standardizer);
+    let model = TransformerConfig { inputs: c.standardizer.columns.len(), seq_len: 8, ..small_model() };
+    let ck =
+        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, vec![], Some(&features), &c.standardizer);
     // Before epoch 1 the other shards (and a broken file) appear.
     let mut calls = 0;
     let mut skipped = Vec::new();

@@ -12,6 +12,7 @@ use dynforge_shard::content_hash;
 use dynforge_recording::dataset::list_shards;
 use dynforge_recording::{GRID_DT, ReadError, read};
 
+use super::codec::{Decoder, Encoder};
 use super::dataset::{row_width, windows};
 use super::features::JacobianFeatures;
 use super::window::WindowSpec;
@@ -92,71 +93,46 @@ fn read_shard(path: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Re
     Ok(ShardWindows { robot, labels, width, count, data })
 }
 
-fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, ReadError> {
+/// The key of a cache of the run directory `dir`: a hash of its manifest, its ledger's records (sorted: completion
+/// order differs from run to run) and `preprocessing`, whatever else determines the cached values.
+pub(crate) fn dataset_key(dir: &Path, preprocessing: &[u8]) -> Result<u64, ReadError> {
     let read_file = |name: &str| {
         std::fs::read(dir.join(name))
             .map_err(|e| ReadError::Content { file: dir.join(name).display().to_string(), problem: e.to_string() })
     };
     let mut material = read_file(MANIFEST)?;
-    // The ledger's records, in a canonical order: completion order differs from run to run.
     let ledger = String::from_utf8_lossy(&read_file(LEDGER)?).to_string();
     let mut lines: Vec<&str> = ledger.lines().collect();
     lines.sort_unstable();
     material.extend(lines.join("\n").bytes());
-    material.extend(format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, GRID_DT).bytes());
+    material.extend(preprocessing);
+    Ok(content_hash(&material))
+}
+
+fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, ReadError> {
+    let mut material = format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, GRID_DT).into_bytes();
     for e in &features.entries {
         material.extend(e.name.bytes());
     }
     material.extend(MAGIC);
-    Ok(content_hash(&material))
+    dataset_key(dir, &material)
 }
 
 fn encode(w: &CachedWindows) -> Vec<u8> {
-    let mut out = Vec::with_capacity(64 + w.data.len() * 4 + w.labels.len() * (NUM_LABELS * 8 + 8));
-    out.extend(MAGIC);
-    for v in [w.spec.len, w.spec.stride, w.spec.ssr, w.width, w.count()] {
-        out.extend((v as u64).to_le_bytes());
-    }
-    out.extend(w.data.iter().flat_map(|v| v.to_le_bytes()));
-    out.extend(w.labels.iter().flatten().flat_map(|v| v.to_le_bytes()));
-    out.extend(w.robots.iter().flat_map(|v| v.to_le_bytes()));
-    let check = content_hash(&out);
-    out.extend(check.to_le_bytes());
-    out
+    let mut e = Encoder::new(MAGIC, w.data.len() * 4 + w.labels.len() * (NUM_LABELS * 8 + 8));
+    e.u64s([w.spec.len, w.spec.stride, w.spec.ssr, w.width, w.count()].map(|v| v as u64));
+    e.f32s(&w.data).f64s(&w.labels.concat()).u64s(w.robots.iter().copied());
+    e.finish()
 }
 
 fn decode(bytes: &[u8]) -> Option<CachedWindows> {
-    let (body, check) = bytes.split_at_checked(bytes.len().checked_sub(8)?)?;
-    if content_hash(body).to_le_bytes() != check || !body.starts_with(MAGIC) {
-        return None;
-    }
-    let u64_at = |i: usize| u64::from_le_bytes(body[8 + 8 * i..16 + 8 * i].try_into().ok()?).try_into().ok();
-    let (len, stride, ssr, width, count): (usize, usize, usize, usize, usize) =
-        (u64_at(0)?, u64_at(1)?, u64_at(2)?, u64_at(3)?, u64_at(4)?);
-    let values = count.checked_mul(len)?.checked_mul(width)?;
-    let mut at = 48;
-    let take = |at: &mut usize, n: usize| -> Option<&[u8]> {
-        let s = body.get(*at..at.checked_add(n)?)?;
-        *at += n;
-        Some(s)
-    };
-    let data =
-        take(&mut at, values * 4)?.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().expect("4"))).collect();
-    let flat: Vec<f64> = take(&mut at, count * NUM_LABELS * 8)?
-        .chunks_exact(8)
-        .map(|c| f64::from_le_bytes(c.try_into().expect("8")))
-        .collect();
+    let mut d = Decoder::open(bytes, MAGIC)?;
+    let (len, stride, ssr, width, count) = (d.usize()?, d.usize()?, d.usize()?, d.usize()?, d.usize()?);
+    let data = d.f32s(count.checked_mul(len)?.checked_mul(width)?)?;
+    let flat = d.f64s(count.checked_mul(NUM_LABELS)?)?;
     let labels = flat.chunks_exact(NUM_LABELS).map(|c| c.try_into().expect("38")).collect();
-    let robots =
-        take(&mut at, count * 8)?.chunks_exact(8).map(|c| u64::from_le_bytes(c.try_into().expect("8"))).collect();
-    (at == body.len()).then_some(CachedWindows {
-        spec: WindowSpec { len, stride, ssr },
-        width,
-        data,
-        labels,
-        robots,
-        hit: true,
-    })
+    let robots = d.u64s(count)?;
+    d.done().then_some(CachedWindows { spec: WindowSpec { len, stride, ssr }, width, data, labels, robots, hit: true })
 }
 
 /// Cache file of a run directory for this preprocessing.

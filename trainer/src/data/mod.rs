@@ -4,8 +4,10 @@
 //! the cache of a dataset's windows (`cache`).
 
 pub mod cache;
+mod codec;
 pub mod dataset;
 pub mod features;
 pub mod normalize;
+pub mod physics;
 pub mod split;
 pub mod window;

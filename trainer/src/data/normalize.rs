@@ -73,14 +73,66 @@ impl Standardizer {
         Standardizer { columns, mean, std, label_mean, label_std }
     }
 
+    /// Label statistics of `labels` alone (no input columns yet).
+    pub fn fit_labels<'a>(labels: impl Iterator<Item = &'a [f64; NUM_LABELS]>) -> Standardizer {
+        let (mut s, mut s2, mut n) = ([0.0; NUM_LABELS], [0.0; NUM_LABELS], 0usize);
+        for y in labels {
+            for k in 0..NUM_LABELS {
+                s[k] += y[k];
+                s2[k] += y[k] * y[k];
+            }
+            n += 1;
+        }
+        let mut out = Standardizer::fit_empty();
+        for k in 0..NUM_LABELS {
+            let (m, sd) = mean_std(s[k], s2[k], n.max(1) as f64);
+            out.label_mean[k] = m;
+            out.label_std[k] = if sd > 0.0 { sd } else { 1.0 };
+        }
+        out
+    }
+
+    /// `labels` (from [`Self::fit_labels`]) with input statistics over `rows`: every column is kept; the first
+    /// `standardised` are standardised, the rest pass unchanged (mean 0, deviation 1), e.g. values already in
+    /// standardised label units.
+    pub fn fit_columns<'a>(
+        labels: Standardizer,
+        rows: impl Iterator<Item = &'a [f32]>,
+        standardised: usize,
+    ) -> Standardizer {
+        let (mut s, mut s2, mut n, mut width) = (Vec::<f64>::new(), Vec::<f64>::new(), 0usize, 0usize);
+        for row in rows {
+            if s.is_empty() {
+                width = row.len();
+                (s, s2) = (vec![0.0; width], vec![0.0; width]);
+            }
+            for (c, &v) in row.iter().enumerate() {
+                s[c] += v as f64;
+                s2[c] += v as f64 * v as f64;
+            }
+            n += 1;
+        }
+        let (mean, std) = (0..width)
+            .map(|c| match c < standardised {
+                true => mean_std(s[c], s2[c], n.max(1) as f64),
+                false => (0.0, 1.0),
+            })
+            .map(|(m, sd)| (m, if sd > 0.0 { sd } else { 1.0 }))
+            .unzip();
+        Standardizer { columns: (0..width).collect(), mean, std, ..labels }
+    }
+
+    /// One input row (all columns of the raw row), filtered and standardised.
+    pub fn row(&self, raw: &[f32]) -> Vec<f32> {
+        self.columns.iter().enumerate().map(|(k, &c)| ((raw[c] as f64 - self.mean[k]) / self.std[k]) as f32).collect()
+    }
+
     /// Standardised, filtered inputs of window `i`: `len x columns.len()` values.
     pub fn inputs(&self, w: &CachedWindows, i: usize) -> Vec<f32> {
         let (len, width) = (w.spec.len, w.width);
         let mut out = Vec::with_capacity(len * self.columns.len());
         for row in w.data[i * len * width..(i + 1) * len * width].chunks_exact(width) {
-            for (k, &c) in self.columns.iter().enumerate() {
-                out.push(((row[c] as f64 - self.mean[k]) / self.std[k]) as f32);
-            }
+            out.extend(self.row(row));
         }
         out
     }

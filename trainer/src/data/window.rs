@@ -59,6 +59,25 @@ impl WindowSpec {
         out
     }
 
+    /// The source samples a window stands for, each of its steps standing for the `stride` samples from it on:
+    /// `first .. first + len * stride`, cut at the recording's end. Physics reads the window's torques over this
+    /// span at full rate. Bounds are multiples of [`Self::block`], but for the recording's end.
+    pub fn samples(&self, w: &Window, recording: usize) -> std::ops::Range<usize> {
+        let first = w.offset + w.start * self.stride;
+        first..(first + self.len * self.stride).min(recording)
+    }
+
+    /// The largest run of samples every window span starts and ends on (but at a recording's end).
+    pub fn block(&self) -> usize {
+        let gcd = |mut a: usize, mut b: usize| {
+            while b != 0 {
+                (a, b) = (b, a % b);
+            }
+            a
+        };
+        gcd(self.stride, self.ssr).max(1)
+    }
+
     /// Source sample indices of a window.
     pub fn indices(&self, w: &Window) -> impl Iterator<Item = usize> + '_ {
         let (offset, start, stride) = (w.offset, w.start, self.stride);
@@ -91,6 +110,18 @@ mod tests {
         assert!(spec.windows(64 * 63).is_empty());
         // SSR that does not divide the stride: offsets 0, 24, 48 -> ceil(64 / 24) = 3.
         assert_eq!(WindowSpec { len: 8, stride: 64, ssr: 24 }.offsets().count(), 3);
+        // Spans: 4,096 samples from the window's first index, on 16-sample blocks.
+        assert_eq!(spec.block(), 16);
+        assert_eq!(spec.samples(&w[1], 10_000), 4096..8192);
+        assert_eq!(spec.samples(&w[2], 10_000), 16..4112);
+        assert_eq!(spec.samples(&Window { offset: 48, start: 64 }, 10_000), 4144..8240);
+        assert_eq!(spec.samples(&Window { offset: 0, start: 0 }, 4000), 0..4000);
+        assert_eq!(WindowSpec { len: 8, stride: 64, ssr: 24 }.block(), 8);
+        for win in &w {
+            let span = spec.samples(win, 10_000);
+            assert!(spec.indices(win).all(|i| span.contains(&i)));
+            assert!(span.start % spec.block() == 0 && span.end % spec.block() == 0);
+        }
     }
 
     #[test]

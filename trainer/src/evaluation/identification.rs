@@ -15,14 +15,14 @@ use dynforge_proto::NUM_LABELS;
 use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
-use super::metrics::{Scores, score};
 use super::report::group_r2;
-use super::torque::{TorqueRow, normal_equations, physical_parameters, recording_error, table};
-use dynforge_recording::dataset::{list_shards, shard_dir};
-use dynforge_recording::read;
+use super::torque::{TorqueRow, table};
 use crate::data::split::{Split, split_of};
-use crate::inference::{InferenceError, Predictor};
+use crate::inference::{InferenceError, Predictor, normal_equations, physical_parameters, recording_error};
+use crate::metrics::{Scores, score};
 use crate::parallel::map_in_order;
+use dynforge_recording::dataset::{list_shards, shard_dir};
+use dynforge_recording::{Recording, read};
 
 /// What the identification check reports.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -181,23 +181,17 @@ fn one_robot(
     let (fit, held) = preps.split_at(preps.len().div_ceil(2));
     let template = &fit[0].model;
     let truth = fit[0].labels.unwrap_or([0.0; NUM_LABELS]);
-    // The network's estimate from the fit recordings: window predictions averaged (recordings shorter than a
-    // window contribute none).
-    let (mut sum, mut windows) = ([0.0; NUM_LABELS], 0usize);
+    // The estimator's estimate from the fit recordings (those long enough for a window).
     let mut fit_ne = NormalEquations::new(template.dof());
     for p in fit {
         fit_ne.merge(&normal_equations(p)?);
-        if let Ok(e) = predictor.estimate_prepared(dir, p) {
-            for (s, y) in sum.iter_mut().zip(e.labels) {
-                *s += y * e.windows as f64;
-            }
-            windows += e.windows;
-        }
     }
-    if windows == 0 || fit_ne.rows() == 0 {
+    let long: Vec<&Recording> =
+        fit.iter().filter(|p| !predictor.checkpoint.window_spec().windows(p.trajectory.len()).is_empty()).collect();
+    if long.is_empty() || fit_ne.rows() == 0 {
         return Ok(None);
     }
-    let network: [f64; NUM_LABELS] = std::array::from_fn(|k| sum[k] / windows as f64);
+    let network = predictor.estimate(dir, &long)?.labels;
     let mut held_out = NormalEquations::new(template.dof());
     for p in held {
         held_out.merge(&normal_equations(p)?);

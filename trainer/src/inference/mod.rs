@@ -1,22 +1,25 @@
-//! Estimating the parameters of one recording (a dataset shard or a user's ROS 2 bag) with a checkpoint: every
-//! window of the recording is predicted and the predictions are averaged, and their spread reported.
+//! Estimating a robot's parameters from its recordings (dataset shards or a user's ROS 2 bags) with a checkpoint.
+//! The transformer predicts every window and averages; the physics estimator reads the evidence of the recordings
+//! whole (more data is sharper evidence, not more votes). Both report the spread of their per-window predictions.
+
+mod physics;
 
 use std::path::Path;
 
 use burn::tensor::Device;
-use dynforge_identify::{Prior, least_squares, refine};
+use dynforge_identify::{Evidence, ParameterPrior, Prior, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
+use dynforge_recording::{GRID_DT, ReadError, Recording, read};
 use dynforge_robot::Model;
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::data::cache::CachedWindows;
-use dynforge_recording::{GRID_DT, ReadError, Recording, read};
-
 use crate::data::dataset::{row_width, windows};
 use crate::data::features::JacobianFeatures;
-use crate::evaluation::torque::{normal_equations, physical_parameters, recording_error};
-use crate::model::Estimator;
+use crate::data::physics::{features, recording_evidence};
+use crate::model::Network;
 use crate::training::predict;
+pub use physics::{normal_equations, physical_parameters, recording_error};
 
 #[derive(Debug, thiserror::Error)]
 pub enum InferenceError {
@@ -28,12 +31,12 @@ pub enum InferenceError {
     Recording { file: String, problem: String },
 }
 
-/// A recording's estimate.
+/// An estimate from one robot's recordings.
 #[derive(Debug, Clone)]
 pub struct Estimate {
-    /// Mean over windows of the predicted labels [SI].
+    /// The estimated labels [SI].
     pub labels: [f64; NUM_LABELS],
-    /// Standard deviation over windows [SI] (0 with one window).
+    /// Standard deviation of the per-window predictions [SI] (0 with one window).
     pub spread: [f64; NUM_LABELS],
     pub windows: usize,
 }
@@ -52,7 +55,7 @@ pub struct Refinement {
     pub nrmse_refined: f64,
 }
 
-/// The network's per-robot validation RMSE per label [SI], from the `report.json` that `evaluate` leaves in `dir`.
+/// The estimator's per-robot validation RMSE per label [SI], from the `report.json` that `evaluate` leaves in `dir`.
 fn validation_rmse(dir: &Path) -> Option<[f64; NUM_LABELS]> {
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
     let targets = report.get("robots")?.get("targets")?.as_array()?;
@@ -64,7 +67,8 @@ fn validation_rmse(dir: &Path) -> Option<[f64; NUM_LABELS]> {
 /// A loaded checkpoint, ready to estimate recordings.
 pub struct Predictor {
     pub checkpoint: Checkpoint,
-    model: Estimator,
+    model: Network,
+    prior: Option<ParameterPrior>,
     device: Device,
 }
 
@@ -72,36 +76,88 @@ impl Predictor {
     pub fn load(dir: &Path) -> Result<Self, InferenceError> {
         let device = Device::default();
         let (checkpoint, model) = Checkpoint::load(dir, &device)?;
-        Ok(Predictor { checkpoint, model, device })
+        let prior = checkpoint.parameter_prior();
+        Ok(Predictor { checkpoint, model, prior, device })
     }
 
     /// The network (evaluation mode).
-    pub fn model(&self) -> &Estimator {
+    pub fn model(&self) -> &Network {
         &self.model
     }
 
-    /// Estimate of a prepared recording, checked against the checkpoint's joints and features.
-    pub fn estimate_prepared(&self, dir: &Path, p: &Recording) -> Result<Estimate, InferenceError> {
-        let features = JacobianFeatures::new(&p.model);
-        let joints: Vec<String> = p.model.joints().iter().map(|j| j.name.clone()).collect();
+    /// Whether this is the physics estimator.
+    pub fn is_physics(&self) -> bool {
+        self.prior.is_some()
+    }
+
+    /// Predictions [SI] of standardised inputs (`count` examples of the model's input shape).
+    fn predict_standardised(&self, x: &[f32], count: usize) -> Vec<[f64; NUM_LABELS]> {
+        let s = self.checkpoint.standardizer();
+        predict(&self.model, x, count, self.checkpoint.model.input_shape(), &self.device)
+            .iter()
+            .map(|t| s.labels(t))
+            .collect()
+    }
+
+    /// The physics estimator's predictions [SI] of pieces of evidence (e.g. windows', or robots' summed).
+    pub fn predict_evidence(&self, evidence: &[Evidence]) -> Result<Vec<[f64; NUM_LABELS]>, InferenceError> {
+        let prior = self.prior.as_ref().ok_or_else(|| InferenceError::Recording {
+            file: self.checkpoint.dataset.clone(),
+            problem: "not a physics checkpoint".into(),
+        })?;
+        let s = self.checkpoint.standardizer();
+        let mut x = Vec::new();
+        for e in evidence {
+            let f = features(prior, e, &s.label_mean, &s.label_std).map_err(|err| InferenceError::Recording {
+                file: self.checkpoint.dataset.clone(),
+                problem: err.to_string(),
+            })?;
+            x.extend(s.row(&f));
+        }
+        Ok(self.predict_standardised(&x, evidence.len()))
+    }
+
+    /// Checks that `rec` fits the checkpoint and has a window at least.
+    fn check(&self, dir: &Path, rec: &Recording) -> Result<JacobianFeatures, InferenceError> {
+        let features = JacobianFeatures::new(&rec.model);
+        let joints: Vec<String> = rec.model.joints().iter().map(|j| j.name.clone()).collect();
         self.checkpoint.check_fits(dir, &joints, &features)?;
         let spec = self.checkpoint.window_spec();
-        let (count, data) = windows(p, &spec, &features);
-        if count == 0 {
-            let seconds = p.trajectory.len() as f64 * GRID_DT;
+        if spec.windows(rec.trajectory.len()).is_empty() {
             return Err(InferenceError::Recording {
-                file: p.path.display().to_string(),
+                file: rec.path.display().to_string(),
                 problem: format!(
-                    "{seconds:.3} s of motion is shorter than one window ({:.3} s = {} samples x {} ms)",
+                    "{:.3} s of motion is shorter than one window ({:.3} s = {} samples x {} ms)",
+                    rec.seconds(),
                     spec.span(GRID_DT),
                     spec.len,
                     spec.stride
                 ),
             });
         }
+        Ok(features)
+    }
+
+    /// Per-window predictions [SI] of a recording (windows in `WindowSpec::windows` order), and for the physics
+    /// estimator the evidence of the whole recording.
+    pub fn windows(
+        &self,
+        dir: &Path,
+        rec: &Recording,
+    ) -> Result<(Vec<[f64; NUM_LABELS]>, Option<Evidence>), InferenceError> {
+        let features = self.check(dir, rec)?;
+        let spec = self.checkpoint.window_spec();
+        if let Some(prior) = &self.prior {
+            let (per_window, whole) = recording_evidence(rec, prior, &spec).map_err(|e| InferenceError::Recording {
+                file: rec.path.display().to_string(),
+                problem: e.to_string(),
+            })?;
+            return Ok((self.predict_evidence(&per_window)?, Some(whole)));
+        }
+        let (count, data) = windows(rec, &spec, &features);
         let w = CachedWindows {
             spec,
-            width: row_width(&p.model, &features),
+            width: row_width(&rec.model, &features),
             data,
             labels: vec![[0.0; NUM_LABELS]; count],
             robots: vec![0; count],
@@ -109,22 +165,39 @@ impl Predictor {
         };
         let s = self.checkpoint.standardizer();
         let x: Vec<f32> = (0..count).flat_map(|i| s.inputs(&w, i)).collect();
-        let per_window: Vec<[f64; NUM_LABELS]> =
-            predict(&self.model, &x, count, spec.len, s.columns.len(), &self.device)
-                .iter()
-                .map(|t| s.labels(t))
-                .collect();
-        let n = count as f64;
-        let labels: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
-        let spread =
-            std::array::from_fn(|k| (per_window.iter().map(|y| (y[k] - labels[k]).powi(2)).sum::<f64>() / n).sqrt());
-        Ok(Estimate { labels, spread, windows: count })
+        Ok((self.predict_standardised(&x, count), None))
     }
 
-    /// The network's estimate `e` of the recording `p` refined by physics: the labels that best explain the
-    /// recording's torques (least squares on the regressor) with the estimate as prior. The prior's spread per label
-    /// is the network's per-robot validation RMSE from `report.json` in the checkpoint directory (written by
-    /// `evaluate`), or the training labels' spread when there is none.
+    /// The estimate of one robot from its recordings `recs` (all of the same robot), checked against the
+    /// checkpoint's joints (and, for the transformer, features).
+    pub fn estimate(&self, dir: &Path, recs: &[&Recording]) -> Result<Estimate, InferenceError> {
+        let mut per_window = Vec::new();
+        let mut whole: Option<Evidence> = None;
+        for rec in recs {
+            let (w, e) = self.windows(dir, rec)?;
+            per_window.extend(w);
+            if let Some(e) = e {
+                match &mut whole {
+                    Some(sum) => sum.add(&e),
+                    None => whole = Some(e),
+                }
+            }
+        }
+        let n = per_window.len() as f64;
+        let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
+        let spread =
+            std::array::from_fn(|k| (per_window.iter().map(|y| (y[k] - mean[k]).powi(2)).sum::<f64>() / n).sqrt());
+        let labels = match whole {
+            Some(e) => self.predict_evidence(&[e])?[0],
+            None => mean,
+        };
+        Ok(Estimate { labels, spread, windows: per_window.len() })
+    }
+
+    /// The estimate `e` of the recording `p` refined by physics: the labels that best explain the recording's
+    /// torques (least squares on the regressor) with the estimate as prior. The prior's spread per label is the
+    /// estimator's per-robot validation RMSE from `report.json` in the checkpoint directory (written by `evaluate`),
+    /// or the training labels' spread when there is none.
     pub fn refine(&self, dir: &Path, p: &Recording, e: &Estimate) -> Result<Refinement, InferenceError> {
         let ne = normal_equations(p)?;
         let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
@@ -145,14 +218,14 @@ impl Predictor {
 
     /// Reads and estimates the recording `path`; its robot comes from its `/robot_description` unless `urdf` is
     /// given.
-    pub fn estimate(
+    pub fn estimate_file(
         &self,
         dir: &Path,
         path: &Path,
         urdf: Option<&Model>,
     ) -> Result<(Recording, Estimate), InferenceError> {
         let p = read(path, urdf)?;
-        let e = self.estimate_prepared(dir, &p)?;
+        let e = self.estimate(dir, &[&p])?;
         Ok((p, e))
     }
 }

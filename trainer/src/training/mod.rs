@@ -5,7 +5,10 @@
 //! (dropout) is reseeded from `(seed, step)` before every step, so a run resumed from its last checkpoint (weights
 //! with their parameter ids, optimizer moments, step counter) takes the same steps as one that never stopped.
 
+mod corpus;
+pub mod physics;
 pub mod schedule;
+pub mod session;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,10 +25,10 @@ use dynforge_robot::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{Checkpoint, CheckpointError, write_atomic};
-use crate::data::cache::CachedWindows;
 use crate::data::normalize::Standardizer;
-use crate::evaluation::metrics::{Scores, score};
-use crate::model::{Estimator, ModelConfig};
+use crate::metrics::{Scores, score};
+use crate::model::{Network, NetworkConfig};
+pub use corpus::Corpus;
 use schedule::Schedule;
 
 /// Optimisation settings.
@@ -141,63 +144,27 @@ pub enum TrainError {
     Setup(String),
 }
 
-/// Windows split and standardised, ready for batches. With `--follow` it grows between epochs.
-pub struct Corpus {
-    pub windows: CachedWindows,
-    pub train: Vec<usize>,
-    pub validation: Vec<usize>,
-    pub standardizer: Standardizer,
+/// What a run trains on: standardised examples of both splits. The transformer's are windows ([`Corpus`]); the
+/// physics estimator's are pieces of evidence, real and drawn from the generator ([`physics::PhysicsExamples`]).
+pub trait Examples: Sync {
+    /// The shape of one example's input, `[steps, values per step]`.
+    fn shape(&self) -> [usize; 2];
+    /// The statistics that standardise inputs and labels.
+    fn standardizer(&self) -> &Standardizer;
+    /// Prepares epoch `epoch` (e.g. draws its generated examples); called before its first batch, also on resume.
+    fn begin_epoch(&mut self, _epoch: usize) {}
+    fn train_len(&self) -> usize;
+    fn validation_len(&self) -> usize;
+    /// Standardised inputs and targets of training examples `ids` (`0..train_len()`), concatenated.
+    fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>);
+    /// Standardised inputs of every validation example, concatenated, and their labels [SI].
+    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>);
 }
 
-impl Corpus {
-    /// Adds the windows of the dataset shards `paths`, each to the side of the split its robot belongs to. Shards
-    /// that cannot be read, or are not dataset shards, are skipped and returned with the reason.
-    pub fn add_shards(
-        &mut self,
-        paths: &[std::path::PathBuf],
-        features: &crate::data::features::JacobianFeatures,
-        split_seed: u64,
-        validation_fraction: f64,
-    ) -> Vec<String> {
-        use crate::data::split::{Split, split_of};
-        let mut skipped = Vec::new();
-        for added in self.windows.add_shards(paths, features, |_, _| {}) {
-            match added {
-                Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
-                    Split::Train => self.train.extend(new),
-                    Split::Validation => self.validation.extend(new),
-                },
-                Err(why) => skipped.push(why),
-            }
-        }
-        skipped
-    }
-
-    fn batch(&self, ids: &[usize], device: &Device) -> (Tensor<3>, Tensor<2>) {
-        let (len, width) = (self.windows.spec.len, self.standardizer.columns.len());
-        let mut x = Vec::with_capacity(ids.len() * len * width);
-        let mut y = Vec::with_capacity(ids.len() * NUM_LABELS);
-        for &i in ids {
-            x.extend(self.standardizer.inputs(&self.windows, i));
-            y.extend(self.standardizer.targets(&self.windows.labels[i]));
-        }
-        (
-            Tensor::from_data(TensorData::new(x, [ids.len(), len, width]), device),
-            Tensor::from_data(TensorData::new(y, [ids.len(), NUM_LABELS]), device),
-        )
-    }
-}
-
-/// Standardised predictions of `model` for standardised inputs `x` (`count x L x F`), in batches.
-pub fn predict(
-    model: &Estimator,
-    x: &[f32],
-    count: usize,
-    len: usize,
-    width: usize,
-    device: &Device,
-) -> Vec<[f32; NUM_LABELS]> {
+/// Standardised predictions of `model` for standardised inputs `x` (`count` examples of `shape`), in batches.
+pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], device: &Device) -> Vec<[f32; NUM_LABELS]> {
     const CHUNK: usize = 256;
+    let [len, width] = shape;
     let per = len * width;
     let chunk = |start: usize| {
         let n = (count - start).min(CHUNK);
@@ -213,18 +180,12 @@ pub fn predict(
     crate::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
 }
 
-/// Scores, SI predictions and mean squared error (standardised) of `model` on windows `ids` of `w`.
-pub fn evaluate(
-    model: &Estimator,
-    w: &CachedWindows,
-    s: &Standardizer,
-    ids: &[usize],
-    device: &Device,
-) -> (Scores, Vec<[f64; NUM_LABELS]>, f64) {
-    let x: Vec<f32> = ids.iter().flat_map(|&i| s.inputs(w, i)).collect();
-    let pred = predict(model, &x, ids.len(), w.spec.len, s.columns.len(), device);
+/// Scores, SI predictions and mean squared error (standardised) of `model` on the validation examples.
+pub fn evaluate(model: &Network, examples: &dyn Examples, device: &Device) -> (Scores, Vec<[f64; NUM_LABELS]>, f64) {
+    let (x, truth) = examples.validation();
+    let s = examples.standardizer();
+    let pred = predict(model, &x, truth.len(), examples.shape(), device);
     let predicted: Vec<[f64; NUM_LABELS]> = pred.iter().map(|p| s.labels(p)).collect();
-    let truth: Vec<[f64; NUM_LABELS]> = ids.iter().map(|&i| w.labels[i]).collect();
     let scores = score(&predicted, &truth, &s.label_std);
     let mse = scores.rmse * scores.rmse;
     (scores, predicted, mse)
@@ -244,7 +205,7 @@ fn optimizer(cfg: &TrainConfig) -> ModuleOptimizer {
 /// batch, so the sum is the mean-squared error of the whole batch. Gradients are summed in part order: the result
 /// does not depend on thread timing.
 fn step_gradients<F>(
-    model: &Estimator,
+    model: &Network,
     n: usize,
     parts: usize,
     (seed, step): (u64, u64),
@@ -256,7 +217,7 @@ where
 {
     let parts = parts.clamp(1, n.max(1));
     let bounds: Vec<usize> = (0..=parts).map(|p| p * n / parts).collect();
-    let run = |p: usize, replica: Estimator| {
+    let run = |p: usize, replica: Network| {
         let (x, y) = batch(bounds[p]..bounds[p + 1]);
         let mut rng = Rng::stream(seed, &[0x6472_6f70, step, p as u64]);
         let share = (bounds[p + 1] - bounds[p]) as f64 / n as f64;
@@ -300,7 +261,7 @@ fn io(path: &Path, e: impl ToString) -> TrainError {
     TrainError::Checkpoint(CheckpointError::File { file: path.display().to_string(), problem: e.to_string() })
 }
 
-fn save_state(dir: &Path, model: &Estimator, optim: &ModuleOptimizer, state: &TrainState) -> Result<(), TrainError> {
+fn save_state(dir: &Path, model: &Network, optim: &ModuleOptimizer, state: &TrainState) -> Result<(), TrainError> {
     let t = train_dir(dir);
     let mut store = BurnpackStore::from_bytes(None);
     model.save_into(&mut store).map_err(|e| io(&t.join("last.bpk"), e))?;
@@ -316,7 +277,7 @@ fn save_state(dir: &Path, model: &Estimator, optim: &ModuleOptimizer, state: &Tr
 
 fn load_state(
     dir: &Path,
-    model: &mut Estimator,
+    model: &mut Network,
     optim: ModuleOptimizer,
 ) -> Result<(ModuleOptimizer, TrainState), TrainError> {
     let t = train_dir(dir);
@@ -370,13 +331,14 @@ pub fn resumable(dir: &Path) -> bool {
     train_dir(dir).join("state.json").is_file()
 }
 
-/// Trains `checkpoint.model` on `corpus` into the checkpoint directory `dir`, from scratch or resuming its saved
+/// Trains `checkpoint.model` on `examples` into the checkpoint directory `dir`, from scratch or resuming its saved
 /// state. Stops after the last epoch, on early stopping, or when `stop` becomes true (checkpointing first).
-/// `grow`, if given, runs before every epoch and may add windows to the corpus (training while generating); the
-/// learning-rate schedule then follows the current size. Exact resume needs a corpus that did not grow.
-pub fn train(
-    corpus: &mut Corpus,
-    mut grow: Option<&mut dyn FnMut(&mut Corpus)>,
+/// `grow`, if given, runs before every epoch and may add examples (training while generating); the
+/// learning-rate schedule then follows the current size. Exact resume needs examples that did not grow.
+#[allow(clippy::too_many_arguments)]
+pub fn train<E: Examples>(
+    examples: &mut E,
+    mut grow: Option<&mut dyn FnMut(&mut E)>,
     mut checkpoint: Checkpoint,
     cfg: &TrainConfig,
     dir: &Path,
@@ -384,11 +346,11 @@ pub fn train(
     observer: &mut dyn TrainObserver,
     stop: &AtomicBool,
 ) -> Result<TrainSummary, TrainError> {
-    if corpus.train.is_empty() || corpus.validation.is_empty() {
+    if examples.train_len() == 0 || examples.validation_len() == 0 {
         return Err(TrainError::Setup(format!(
-            "{} training and {} validation windows: both splits need windows (more robots, or another validation fraction)",
-            corpus.train.len(),
-            corpus.validation.len()
+            "{} training and {} validation examples: both splits need windows (more robots, or another validation fraction)",
+            examples.train_len(),
+            examples.validation_len()
         )));
     }
     if cfg.batch == 0 || cfg.epochs == 0 {
@@ -432,11 +394,12 @@ pub fn train(
     let mut interrupted = false;
     while state.epoch < cfg.epochs && !state.stopped_early {
         if let Some(g) = grow.as_mut() {
-            g(corpus);
+            g(examples);
         }
-        let batches = corpus.train.len().div_ceil(cfg.batch);
+        examples.begin_epoch(state.epoch);
+        let batches = examples.train_len().div_ceil(cfg.batch);
         let schedule = Schedule::new(cfg.lr, cfg.warmup, cfg.epochs * batches);
-        let order = epoch_order(cfg.seed, state.epoch, corpus.train.len());
+        let order = epoch_order(cfg.seed, state.epoch, examples.train_len());
         let started = Instant::now();
         let cpu_started = process_cpu_seconds();
         let mut trained = 0usize;
@@ -445,11 +408,15 @@ pub fn train(
                 interrupted = true;
                 break;
             }
-            let ids: Vec<usize> =
-                order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())].iter().map(|&k| corpus.train[k]).collect();
+            let ids = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
+            let shape = examples.shape();
             let (value, grads) =
                 step_gradients(&model, ids.len(), cfg.micro_batches, (cfg.seed, state.step as u64), &device, |r| {
-                    corpus.batch(&ids[r], &device)
+                    let (x, y) = examples.train_batch(&ids[r.clone()]);
+                    (
+                        Tensor::from_data(TensorData::new(x, [r.len(), shape[0], shape[1]]), &device),
+                        Tensor::from_data(TensorData::new(y, [r.len(), NUM_LABELS]), &device),
+                    )
                 });
             if !value.is_finite() {
                 return Err(TrainError::Setup(format!(
@@ -471,13 +438,12 @@ pub fn train(
         let seconds = started.elapsed().as_secs_f64();
         let cpu_seconds = process_cpu_seconds() - cpu_started;
         let valid = model.valid();
-        let (scores, _, val_loss) =
-            evaluate(&valid, &corpus.windows, &corpus.standardizer, &corpus.validation, &device.clone().inner());
+        let (scores, _, val_loss) = evaluate(&valid, examples, &device.clone().inner());
         let m = EpochMetrics {
             epoch: state.epoch,
             step: state.step,
             lr: schedule.lr(state.step.saturating_sub(1)),
-            train_loss: state.train_loss_sum / corpus.train.len() as f64,
+            train_loss: state.train_loss_sum / examples.train_len() as f64,
             validation_loss: val_loss,
             validation_r2: scores.r2,
             validation_rmse: scores.rmse,
@@ -514,7 +480,7 @@ pub fn train(
 /// untimed ones) on random standardised windows and targets, with the loss, optimizer and clipping of `train`.
 /// The benchmark against PyTorch (bench/training.sh) runs this and the same model in PyTorch side by side.
 pub fn synthetic_throughput(
-    cfg: &ModelConfig,
+    cfg: &NetworkConfig,
     batch: usize,
     micro_batches: usize,
     steps: usize,
@@ -527,7 +493,8 @@ pub fn synthetic_throughput(
     let mut model = cfg.init(&device)?;
     let defaults = TrainConfig::default();
     let mut optim = optimizer(&defaults);
-    let x = Tensor::<3>::random([batch, cfg.seq_len, cfg.inputs], Distribution::Normal(0.0, 1.0), &device);
+    let [len, width] = cfg.input_shape();
+    let x = Tensor::<3>::random([batch, len, width], Distribution::Normal(0.0, 1.0), &device);
     let y = Tensor::<2>::random([batch, NUM_LABELS], Distribution::Normal(0.0, 1.0), &device);
     let mut started = Instant::now();
     for step in 0..warmup + steps {
@@ -548,7 +515,7 @@ mod tests {
     use burn::module::{ModuleVisitor, Param};
 
     /// Every parameter's gradient, flattened, in module order.
-    fn flat(model: &Estimator, grads: &GradientsParams) -> Vec<f32> {
+    fn flat(model: &Network, grads: &GradientsParams) -> Vec<f32> {
         struct Collect<'a>(&'a GradientsParams, Vec<f32>);
         impl ModuleVisitor for Collect<'_> {
             fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
@@ -562,9 +529,18 @@ mod tests {
     }
 
     /// A small model and a batch of 7 windows (odd, so micro-batches differ in size).
-    fn setup(dropout: f64) -> (Estimator, Tensor<3>, Tensor<2>, Device) {
+    fn setup(dropout: f64) -> (Network, Tensor<3>, Tensor<2>, Device) {
         let device = Device::default().autodiff();
-        let cfg = ModelConfig { inputs: 3, seq_len: 8, layers: 1, heads: 2, d_model: 16, d_ff: 32, patch: 2, dropout };
+        let cfg = NetworkConfig::Transformer(crate::model::TransformerConfig {
+            inputs: 3,
+            seq_len: 8,
+            layers: 1,
+            heads: 2,
+            d_model: 16,
+            d_ff: 32,
+            patch: 2,
+            dropout,
+        });
         let model = cfg.init(&device).unwrap();
         let mut rng = Rng::stream(5, &[]);
         let mut draw = |n: usize| -> Vec<f32> { (0..n).map(|_| rng.uniform(-1.0, 1.0) as f32).collect() };
@@ -573,7 +549,7 @@ mod tests {
         (model, x, y, device)
     }
 
-    fn step(model: &Estimator, x: &Tensor<3>, y: &Tensor<2>, parts: usize, device: &Device) -> (f64, Vec<f32>) {
+    fn step(model: &Network, x: &Tensor<3>, y: &Tensor<2>, parts: usize, device: &Device) -> (f64, Vec<f32>) {
         let (loss, grads) = step_gradients(model, 7, parts, (0, 0), device, |r| {
             (x.clone().narrow(0, r.start, r.len()), y.clone().narrow(0, r.start, r.len()))
         });

@@ -1,0 +1,60 @@
+//! `dynforge evaluate`: a checkpoint scored on its validation robots.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use dynforge_trainer::checkpoint::Checkpoint;
+use dynforge_trainer::evaluation::{Report, evaluate_checkpoint, write};
+use dynforge_trainer::training::session::Inputs;
+
+use crate::progress::bar;
+
+/// How many validation recordings and robots the torque and identification checks take by default.
+pub const TORQUE_RECORDINGS: usize = 64;
+pub const IDENTIFY_ROBOTS: usize = 32;
+
+#[derive(Args)]
+pub struct EvaluateArgs {
+    /// Checkpoint directory (from `dynforge train`).
+    checkpoint: PathBuf,
+    /// Dataset to evaluate on (default: the one the checkpoint was trained on); its validation robots are used.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// Validation recordings to run the torque check on (0: skip it).
+    #[arg(long, default_value_t = TORQUE_RECORDINGS)]
+    torque_recordings: usize,
+    /// Validation robots to identify by physics (least squares on the regressor, and the hybrid that refines the
+    /// estimate with it) from half of their recordings, scored on the other half (0: skip it).
+    #[arg(long, default_value_t = IDENTIFY_ROBOTS)]
+    identify_robots: usize,
+}
+
+/// Evaluates, writes `report.md`/`report.json` and prints the report.
+pub fn evaluate(
+    dir: &std::path::Path,
+    data: &std::path::Path,
+    inputs: Option<Inputs>,
+    checks: (usize, usize),
+) -> Result<Report> {
+    let b = bar("{msg} {bar:40} {pos}/{len}");
+    let report = evaluate_checkpoint(dir, data, inputs, checks.0, checks.1, |what, k, n| {
+        b.set_message(what.to_string());
+        b.set_length(n as u64);
+        b.set_position(k as u64);
+    })?;
+    b.finish_and_clear();
+    write(dir, &report).map_err(|e| anyhow::anyhow!("writing the report into {}: {e}", dir.display()))?;
+    println!("{}", report.markdown());
+    eprintln!("written: {0}/report.md, {0}/report.json", dir.display());
+    Ok(report)
+}
+
+pub fn run(args: EvaluateArgs) -> Result<()> {
+    let data = match args.data {
+        Some(d) => d,
+        None => PathBuf::from(Checkpoint::read(&args.checkpoint)?.dataset),
+    };
+    evaluate(&args.checkpoint, &data, None, (args.torque_recordings, args.identify_robots))?;
+    Ok(())
+}

@@ -1,0 +1,100 @@
+//! Progress in the terminal for the trainer's commands, and the stop flag that Ctrl-C / SIGTERM set.
+
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use dynforge_trainer::training::session::SessionObserver;
+use dynforge_trainer::training::{EpochMetrics, TrainObserver};
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Set by SIGINT/SIGTERM: training checkpoints and stops at the next step.
+pub static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_signal(_: libc::c_int) {
+    STOP.store(true, Ordering::Relaxed);
+}
+
+/// From now on Ctrl-C and SIGTERM set [`STOP`] instead of killing the process.
+pub fn catch_interrupts() {
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
+    }
+}
+
+/// A progress bar on standard error, hidden when it is not a terminal.
+pub fn bar(template: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(0);
+    b.set_style(ProgressStyle::with_template(template).expect("valid template"));
+    b
+}
+
+/// A session's progress: a bar for preprocessing and for the batches of an epoch, a line per epoch.
+pub struct Bars {
+    bar: ProgressBar,
+    started: Instant,
+    batch: usize,
+    steps: usize,
+}
+
+impl Bars {
+    pub fn new(batch: usize) -> Self {
+        Bars { bar: bar("{msg} {bar:40} {pos}/{len}"), started: Instant::now(), batch, steps: 0 }
+    }
+
+    fn line(&self, text: &str) {
+        if self.bar.is_hidden() { eprintln!("{text}") } else { self.bar.println(text) }
+    }
+}
+
+impl Drop for Bars {
+    fn drop(&mut self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+impl TrainObserver for Bars {
+    fn step(&mut self, epoch: usize, batch: usize, batches: usize, loss: f64) {
+        if batch == 1 || self.bar.length() != Some(batches as u64) {
+            self.bar.set_length(batches as u64);
+            self.started = Instant::now();
+            self.steps = 0;
+        }
+        self.steps += 1;
+        self.bar.set_position(batch as u64);
+        let rate = (self.steps * self.batch) as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+        self.bar.set_message(format!("epoch {epoch}: loss {loss:.4}, {rate:.0} examples/s"));
+    }
+
+    fn epoch(&mut self, m: &EpochMetrics, best: bool) {
+        self.line(&format!(
+            "epoch {:>3}: train loss {:.4}, validation loss {:.4}, R2 {:.4}, RMSE {:.4}, {:.0} examples/s, {:.1} s ({:.1} CPU s){}",
+            m.epoch,
+            m.train_loss,
+            m.validation_loss,
+            m.validation_r2,
+            m.validation_rmse,
+            m.windows_per_second,
+            m.seconds,
+            m.cpu_seconds,
+            if best { " (best)" } else { "" }
+        ));
+    }
+}
+
+impl SessionObserver for Bars {
+    fn preprocessing(&mut self, what: &str, done: usize, total: usize) {
+        self.bar.set_message(what.to_string());
+        self.bar.set_length(total as u64);
+        self.bar.set_position(done as u64);
+    }
+
+    fn message(&mut self, text: &str) {
+        self.line(text);
+    }
+}

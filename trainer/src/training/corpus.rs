@@ -1,0 +1,77 @@
+//! The transformer's examples: the windows of a dataset, split by robot and standardised. With `--follow` it grows
+//! between epochs as the generation adds shards.
+
+use dynforge_proto::NUM_LABELS;
+
+use super::Examples;
+use crate::data::cache::CachedWindows;
+use crate::data::features::JacobianFeatures;
+use crate::data::normalize::Standardizer;
+use crate::data::split::{Split, split_of};
+
+/// Windows split and standardised, ready for batches.
+pub struct Corpus {
+    pub windows: CachedWindows,
+    pub train: Vec<usize>,
+    pub validation: Vec<usize>,
+    pub standardizer: Standardizer,
+}
+
+impl Corpus {
+    /// Adds the windows of the dataset shards `paths`, each to the side of the split its robot belongs to. Shards
+    /// that cannot be read, or are not dataset shards, are skipped and returned with the reason.
+    pub fn add_shards(
+        &mut self,
+        paths: &[std::path::PathBuf],
+        features: &JacobianFeatures,
+        split_seed: u64,
+        validation_fraction: f64,
+    ) -> Vec<String> {
+        let mut skipped = Vec::new();
+        for added in self.windows.add_shards(paths, features, |_, _| {}) {
+            match added {
+                Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
+                    Split::Train => self.train.extend(new),
+                    Split::Validation => self.validation.extend(new),
+                },
+                Err(why) => skipped.push(why),
+            }
+        }
+        skipped
+    }
+}
+
+impl Examples for Corpus {
+    fn shape(&self) -> [usize; 2] {
+        [self.windows.spec.len, self.standardizer.columns.len()]
+    }
+
+    fn standardizer(&self) -> &Standardizer {
+        &self.standardizer
+    }
+
+    fn train_len(&self) -> usize {
+        self.train.len()
+    }
+
+    fn validation_len(&self) -> usize {
+        self.validation.len()
+    }
+
+    fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>) {
+        let [len, width] = self.shape();
+        let mut x = Vec::with_capacity(ids.len() * len * width);
+        let mut y = Vec::with_capacity(ids.len() * NUM_LABELS);
+        for &i in ids {
+            let w = self.train[i];
+            x.extend(self.standardizer.inputs(&self.windows, w));
+            y.extend(self.standardizer.targets(&self.windows.labels[w]));
+        }
+        (x, y)
+    }
+
+    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>) {
+        let x = self.validation.iter().flat_map(|&i| self.standardizer.inputs(&self.windows, i)).collect();
+        (x, self.validation.iter().map(|&i| self.windows.labels[i]).collect())
+    }
+}

@@ -1,0 +1,243 @@
+//! The physics estimator's examples: real evidence from the dataset, and robots drawn from the generator paired with
+//! real excitations.
+//!
+//! A robot's evidence is exact algebra once its excitation is known (`Evidence::noiseless`: the torques of a robot
+//! at coordinates `z` under excitation `H` say `b = H z`), so the map from evidence to labels can learn from as many
+//! generated robots as wanted without simulating any: only the excitations, what a window or a recording of real
+//! motion lets the torques see, come from the simulated dataset. Every epoch draws fresh robots, each paired with
+//! the excitation of a random training window, recording or robot; the real training examples join them, and the
+//! validation windows are the dataset's (the paper's protocol).
+
+use dynforge_identify::{Evidence, ParameterPrior};
+use dynforge_proto::NUM_LABELS;
+use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::parameters::{dynamic_parameters, labels};
+use dynforge_robot::rng::Rng;
+
+use super::Examples;
+use crate::data::normalize::Standardizer;
+use crate::data::physics::{Draw, EvidenceList, LABEL_COLUMNS, PhysicsSet, draw_seed, feature_width, features};
+use crate::data::split::{Split, split_of};
+use crate::parallel::map_in_order;
+
+/// How the physics examples are made.
+#[derive(Debug, Clone)]
+pub struct PhysicsSource {
+    pub generator: GeneratorConfig,
+    /// Seed of the generated robots (apart from the dataset's: `crate::data::physics::draw_seed`).
+    pub seed: u64,
+    /// Generated robots per epoch.
+    pub per_epoch: usize,
+}
+
+/// Generated examples the input statistics are fitted to, besides the real ones.
+const CALIBRATION: usize = 4096;
+
+/// Standardised examples of the physics estimator.
+pub struct PhysicsExamples {
+    prior: ParameterPrior,
+    standardizer: Standardizer,
+    source: PhysicsSource,
+    /// Real training examples (standardised inputs, row-major) and their labels.
+    real_x: Vec<f32>,
+    real_y: Vec<[f64; NUM_LABELS]>,
+    validation_x: Vec<f32>,
+    validation_y: Vec<[f64; NUM_LABELS]>,
+    /// Packed excitations generated robots are paired with: training windows', training recordings', and per
+    /// training robot the indices of its recordings.
+    windows: Vec<Vec<f64>>,
+    recordings: Vec<Vec<f64>>,
+    robots: Vec<Vec<usize>>,
+    /// This epoch's generated examples.
+    drawn_x: Vec<f32>,
+    drawn_y: Vec<[f64; NUM_LABELS]>,
+}
+
+/// Evidence summed per robot, for the robots `keep` accepts: (robot, labels, evidence).
+pub fn per_robot(list: &EvidenceList, keep: impl Fn(u64) -> bool) -> Vec<(u64, [f64; NUM_LABELS], Evidence)> {
+    let mut out: std::collections::BTreeMap<u64, ([f64; NUM_LABELS], Evidence)> = Default::default();
+    for i in (0..list.len()).filter(|&i| keep(list.robots[i])) {
+        let e = list.get(i);
+        match out.get_mut(&list.robots[i]) {
+            Some((_, sum)) => sum.add(&e),
+            None => {
+                out.insert(list.robots[i], (list.labels[i], e));
+            }
+        }
+    }
+    out.into_iter().map(|(r, (y, e))| (r, y, e)).collect()
+}
+
+impl PhysicsExamples {
+    /// The examples of `set`, split by robot (`split_seed`, `fraction`). Label statistics come from the generator
+    /// (a calibration draw of its robots: what the network mostly sees, and well defined however few robots the
+    /// dataset has); input statistics from the real training examples and the calibration draw (the labels'
+    /// spreads and plug-in values stay in label units, since the network scales and adds its output with them).
+    pub fn new(
+        set: &PhysicsSet,
+        prior: ParameterPrior,
+        split: (u64, f64),
+        source: PhysicsSource,
+    ) -> Result<Self, String> {
+        let train = |r: u64| split_of(split.0, r, split.1) == Split::Train;
+        let train_windows: Vec<usize> = (0..set.windows.len()).filter(|&i| train(set.windows.robots[i])).collect();
+        let validation: Vec<usize> = (0..set.windows.len()).filter(|&i| !train(set.windows.robots[i])).collect();
+        let ids: Vec<u64> = (0..CALIBRATION as u64).collect();
+        let generated: Vec<[f64; NUM_LABELS]> = map_in_order(&ids, |&id| {
+            generate(&source.generator, draw_seed(source.seed, Draw::Prior), id)
+                .ok()
+                .and_then(|r| labels(&r.model).ok())
+        })
+        .into_iter()
+        .flatten()
+        .collect();
+        let standardizer = Standardizer::fit_labels(generated.iter());
+        let (lm, ls) = (standardizer.label_mean, standardizer.label_std);
+        let mut evidence: Vec<(Evidence, [f64; NUM_LABELS])> = Vec::new();
+        evidence.extend(train_windows.iter().map(|&i| (set.windows.get(i), set.windows.labels[i])));
+        let recordings: Vec<usize> = (0..set.recordings.len()).filter(|&i| train(set.recordings.robots[i])).collect();
+        evidence.extend(recordings.iter().map(|&i| (set.recordings.get(i), set.recordings.labels[i])));
+        evidence.extend(per_robot(&set.recordings, train).into_iter().map(|(_, y, e)| (e, y)));
+        let raw = map_in_order(&evidence, |(e, _)| features(&prior, e, &lm, &ls));
+        let raw: Vec<Vec<f32>> = raw.into_iter().collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+        let validation_raw = map_in_order(&validation, |&i| features(&prior, &set.windows.get(i), &lm, &ls));
+        let validation_raw: Vec<Vec<f32>> =
+            validation_raw.into_iter().collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+        let mut robots: std::collections::BTreeMap<u64, Vec<usize>> = Default::default();
+        for (k, &i) in recordings.iter().enumerate() {
+            robots.entry(set.recordings.robots[i]).or_default().push(k);
+        }
+        let mut out = PhysicsExamples {
+            windows: train_windows.iter().map(|&i| set.windows.excitation(i).to_vec()).collect(),
+            recordings: recordings.iter().map(|&i| set.recordings.excitation(i).to_vec()).collect(),
+            robots: robots.into_values().collect(),
+            real_x: Vec::new(),
+            real_y: evidence.iter().map(|(_, y)| *y).collect(),
+            validation_x: Vec::new(),
+            validation_y: validation.iter().map(|&i| set.windows.labels[i]).collect(),
+            prior,
+            standardizer,
+            source,
+            drawn_x: Vec::new(),
+            drawn_y: Vec::new(),
+        };
+        if out.windows.is_empty() || out.robots.is_empty() {
+            return Err(
+                "no training windows to take excitations from (more robots, or another validation fraction)".into()
+            );
+        }
+        // Input statistics over the real examples and a calibration draw of generated ones (a stream of its own),
+        // since generated examples are most of what the network sees.
+        let calibration: Vec<usize> = (0..CALIBRATION).collect();
+        let drawn: Vec<Vec<f32>> = map_in_order(&calibration, |&k| out.draw_raw(usize::MAX, k))
+            .into_iter()
+            .flatten()
+            .map(|(f, _)| f)
+            .collect();
+        let width = feature_width(out.prior.rank());
+        let rows = raw.iter().chain(&drawn).map(Vec::as_slice);
+        out.standardizer = Standardizer::fit_columns(out.standardizer, rows, width - LABEL_COLUMNS);
+        out.real_x = raw.iter().flat_map(|f| out.standardizer.row(f)).collect();
+        out.validation_x = validation_raw.iter().flat_map(|f| out.standardizer.row(f)).collect();
+        Ok(out)
+    }
+
+    pub fn prior(&self) -> &ParameterPrior {
+        &self.prior
+    }
+
+    /// Real training examples (windows, recordings and robots).
+    pub fn real(&self) -> usize {
+        self.real_y.len()
+    }
+
+    /// The excitation of generated example `k`: of the kind `k mod 3`, picked by `rng`.
+    fn excitation(&self, k: usize, rng: &mut Rng) -> Vec<f64> {
+        match k % 3 {
+            0 => self.windows[rng.below(self.windows.len())].clone(),
+            1 => self.recordings[rng.below(self.recordings.len())].clone(),
+            _ => {
+                let mut own = self.robots[rng.below(self.robots.len())].clone();
+                let n = 1 + rng.below(own.len());
+                for i in 0..n {
+                    let j = i + rng.below(own.len() - i);
+                    own.swap(i, j);
+                }
+                let mut h = self.recordings[own[0]].clone();
+                for &r in &own[1..n] {
+                    h.iter_mut().zip(&self.recordings[r]).for_each(|(a, b)| *a += b);
+                }
+                h
+            }
+        }
+    }
+
+    /// Generated example `k` of `epoch`, standardised: robot `epoch * per_epoch + k` of the draw seed with the
+    /// excitation the stream (seed, epoch, k) picks; `None` if the generator rejects the robot.
+    fn draw(&self, epoch: usize, k: usize) -> Option<(Vec<f32>, [f64; NUM_LABELS])> {
+        self.draw_raw(epoch, k).map(|(f, y)| (self.standardizer.row(&f), y))
+    }
+
+    /// [`Self::draw`] before standardisation.
+    fn draw_raw(&self, epoch: usize, k: usize) -> Option<(Vec<f32>, [f64; NUM_LABELS])> {
+        let id = (epoch.wrapping_mul(self.source.per_epoch).wrapping_add(k)) as u64;
+        let robot = generate(&self.source.generator, self.source.seed, id).ok()?.model;
+        let z = self.prior.coordinates(&dynamic_parameters(&robot));
+        let mut rng = Rng::stream(self.source.seed, &[0x6578_6369_7465, epoch as u64, k as u64]);
+        let e = Evidence::noiseless(self.prior.rank(), &self.excitation(k, &mut rng), &z);
+        let s = &self.standardizer;
+        let f = features(&self.prior, &e, &s.label_mean, &s.label_std).ok()?;
+        Some((f, labels(&robot).ok()?))
+    }
+}
+
+impl Examples for PhysicsExamples {
+    fn shape(&self) -> [usize; 2] {
+        [1, feature_width(self.prior.rank())]
+    }
+
+    fn standardizer(&self) -> &Standardizer {
+        &self.standardizer
+    }
+
+    fn begin_epoch(&mut self, epoch: usize) {
+        if self.windows.is_empty() || self.robots.is_empty() {
+            return;
+        }
+        let ks: Vec<usize> = (0..self.source.per_epoch).collect();
+        let drawn = map_in_order(&ks, |&k| self.draw(epoch, k));
+        self.drawn_x.clear();
+        self.drawn_y.clear();
+        for (x, y) in drawn.into_iter().flatten() {
+            self.drawn_x.extend(x);
+            self.drawn_y.push(y);
+        }
+    }
+
+    fn train_len(&self) -> usize {
+        self.real_y.len() + self.drawn_y.len()
+    }
+
+    fn validation_len(&self) -> usize {
+        self.validation_y.len()
+    }
+
+    fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>) {
+        let w = self.shape()[1];
+        let mut x = Vec::with_capacity(ids.len() * w);
+        let mut y = Vec::with_capacity(ids.len() * NUM_LABELS);
+        for &i in ids {
+            let (xs, label) = match i.checked_sub(self.real_y.len()) {
+                None => (&self.real_x[i * w..(i + 1) * w], &self.real_y[i]),
+                Some(d) => (&self.drawn_x[d * w..(d + 1) * w], &self.drawn_y[d]),
+            };
+            x.extend_from_slice(xs);
+            y.extend(self.standardizer.targets(label));
+        }
+        (x, y)
+    }
+
+    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>) {
+        (self.validation_x.clone(), self.validation_y.clone())
+    }
+}

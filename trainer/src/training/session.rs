@@ -1,0 +1,450 @@
+//! A training session, as one library call: the flag checks, the resume decision, reading (or waiting for) the
+//! dataset, the robot-level split, the standardisation, the checkpoint's description, then the training loop. The
+//! command line only turns flags into a [`Recipe`] and draws progress from a [`SessionObserver`].
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use dynforge_recording::ReadError;
+use dynforge_recording::dataset::{ShardFollower, dataset_robot, generator, shard_dir};
+
+use super::physics::{PhysicsExamples, PhysicsSource};
+use super::{Corpus, Examples, TrainConfig, TrainError, TrainObserver, TrainSummary, resumable, train};
+use crate::checkpoint::{Checkpoint, CheckpointError, PriorRecord};
+use crate::data::cache::{CachedWindows, load_or_build};
+use crate::data::features::JacobianFeatures;
+use crate::data::normalize::{Standardizer, split_windows};
+use crate::data::physics::{self, Draw, PhysicsError, PhysicsSet, draw_seed};
+use crate::data::window::WindowSpec;
+use crate::model::{NetworkConfig, PhysicsConfig, Preset, TransformerConfig};
+
+/// Which estimator a run trains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelKind {
+    /// The paper's transformer over downsampled windows.
+    Transformer,
+    /// The map from what the torques identify (the generator prior's posterior) to the labels.
+    Physics,
+}
+
+/// The architecture: the estimator, and the parts of its default size a run overrides.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelChoice {
+    pub kind: ModelKind,
+    /// The transformer's preset.
+    pub preset: Preset,
+    pub layers: Option<usize>,
+    pub heads: Option<usize>,
+    /// The transformer's embedding size, the physics map's hidden width.
+    pub dim: Option<usize>,
+    pub patch: Option<usize>,
+    pub dropout: Option<f64>,
+}
+
+impl ModelChoice {
+    pub fn new(kind: ModelKind, preset: Preset) -> Self {
+        ModelChoice { kind, preset, layers: None, heads: None, dim: None, patch: None, dropout: None }
+    }
+
+    /// The transformer's configuration for `inputs` values per step of `seq_len`-step windows.
+    pub fn transformer(&self, inputs: usize, seq_len: usize) -> TransformerConfig {
+        let mut c = self.preset.config(inputs, seq_len);
+        if let Some(d) = self.dim {
+            c.d_model = d;
+            c.d_ff = 4 * d;
+        }
+        c.layers = self.layers.unwrap_or(c.layers);
+        c.heads = self.heads.unwrap_or(c.heads);
+        c.patch = self.patch.unwrap_or(c.patch);
+        c.dropout = self.dropout.unwrap_or(c.dropout);
+        c
+    }
+
+    /// The physics map's configuration for `inputs` features.
+    pub fn physics(&self, inputs: usize) -> PhysicsConfig {
+        let mut c = PhysicsConfig::new(inputs);
+        c.hidden = self.dim.unwrap_or(c.hidden);
+        c.layers = self.layers.unwrap_or(c.layers);
+        c.dropout = self.dropout.unwrap_or(c.dropout);
+        c
+    }
+}
+
+/// What defines a training run besides its data and output directory.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recipe {
+    pub model: ModelChoice,
+    pub window: WindowSpec,
+    pub train: TrainConfig,
+    /// Share of the robots held out for validation.
+    pub validation: f64,
+    /// Robots drawn from the generator per epoch (physics estimator).
+    pub generated_per_epoch: usize,
+}
+
+impl Recipe {
+    /// The defaults of a run of `kind`. The transformer: the paper's architecture, AdamW at 5e-4, batch 64 in 4
+    /// micro-batches (fastest on 2 cores). The physics map: a small network on many cheap examples, so larger batches
+    /// and rate; 32,768 generated robots per epoch (~2 s of drawing per epoch per core).
+    pub fn defaults(kind: ModelKind) -> Recipe {
+        let train = match kind {
+            ModelKind::Transformer => TrainConfig::default(),
+            ModelKind::Physics => TrainConfig { batch: 256, lr: 1e-3, micro_batches: 2, ..TrainConfig::default() },
+        };
+        Recipe {
+            model: ModelChoice::new(kind, Preset::Paper),
+            window: WindowSpec::default(),
+            train,
+            validation: 0.2,
+            generated_per_epoch: 32_768,
+        }
+    }
+}
+
+/// Progress of a session beyond the training loop's.
+pub trait SessionObserver: TrainObserver {
+    /// `done` of `total` items of a preprocessing stage (`what`).
+    fn preprocessing(&mut self, _what: &str, _done: usize, _total: usize) {}
+    /// Something the user should know (skipped shards, waiting, a fresh start instead of a resume).
+    fn message(&mut self, _text: &str) {}
+}
+
+impl SessionObserver for () {}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("{0}")]
+    Setup(String),
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error(transparent)]
+    Physics(#[from] PhysicsError),
+    #[error(transparent)]
+    Checkpoint(#[from] CheckpointError),
+    #[error(transparent)]
+    Train(#[from] TrainError),
+    #[error("interrupted: the run is saved in {0}; continue it with --resume")]
+    Interrupted(String),
+}
+
+/// What a session's data became: returned so that an evaluation right after training need not read them again.
+pub enum Inputs {
+    Windows(CachedWindows),
+    Physics(PhysicsSet),
+}
+
+/// A finished session.
+pub struct Trained {
+    pub summary: TrainSummary,
+    pub inputs: Inputs,
+}
+
+/// One training run.
+pub struct Session<'a> {
+    /// A `dynforge generate` directory.
+    pub data: &'a Path,
+    /// The checkpoint directory.
+    pub out: &'a Path,
+    /// Continue the run in `out` (a fresh start if there is none).
+    pub resume: bool,
+    /// Train while the dataset is generated (transformer).
+    pub follow: bool,
+    pub recipe: &'a Recipe,
+    /// Set (e.g. by a signal handler) to checkpoint and stop at the next step.
+    pub stop: &'a AtomicBool,
+}
+
+impl Session<'_> {
+    pub fn run(&self, observer: &mut dyn SessionObserver) -> Result<Trained, SessionError> {
+        let r = self.recipe;
+        if !(r.validation > 0.0 && r.validation < 1.0) {
+            return Err(SessionError::Setup(format!("--validation {} must be between 0 and 1", r.validation)));
+        }
+        if r.train.micro_batches == 0 || r.train.micro_batches > r.train.batch {
+            return Err(SessionError::Setup(format!(
+                "--micro-batches {} must be between 1 and --batch {}",
+                r.train.micro_batches, r.train.batch
+            )));
+        }
+        if r.window.len == 0 || r.window.stride == 0 || r.window.ssr == 0 {
+            return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
+        }
+        let resume = self.resume && resumable(self.out);
+        if self.resume && !resume {
+            observer.message(&format!("{} holds no run to resume; starting a new one", self.out.display()));
+        }
+        if !resume && Checkpoint::read(self.out).is_ok() {
+            return Err(SessionError::Setup(format!(
+                "{} already holds a checkpoint: pass --resume to continue it, or choose another --out",
+                self.out.display()
+            )));
+        }
+        let previous = if resume { Some(Checkpoint::read(self.out)?) } else { None };
+        match previous.as_ref().map_or(r.model.kind, |c| match c.model {
+            NetworkConfig::Transformer(_) => ModelKind::Transformer,
+            NetworkConfig::Physics(_) => ModelKind::Physics,
+        }) {
+            ModelKind::Transformer => self.transformer(previous, resume, observer),
+            ModelKind::Physics => self.physics(previous, resume, observer),
+        }
+    }
+
+    fn split(&self, previous: &Option<Checkpoint>) -> (u64, f64) {
+        previous
+            .as_ref()
+            .map_or((self.recipe.train.seed, self.recipe.validation), |c| (c.split_seed, c.validation_fraction))
+    }
+
+    fn stamp(&self, c: &mut Checkpoint, split: (u64, f64)) {
+        c.dataset = std::fs::canonicalize(self.data).unwrap_or(self.data.to_path_buf()).display().to_string();
+        (c.split_seed, c.validation_fraction) = split;
+    }
+
+    fn finish(
+        &self,
+        summary: TrainSummary,
+        inputs: Inputs,
+        observer: &mut dyn SessionObserver,
+    ) -> Result<Trained, SessionError> {
+        if summary.interrupted {
+            return Err(SessionError::Interrupted(self.out.display().to_string()));
+        }
+        observer.message(&format!(
+            "{} after {} epochs; best epoch {} -> {}",
+            if summary.stopped_early { "stopped early" } else { "finished" },
+            summary.history.len(),
+            summary.best_epoch,
+            self.out.display()
+        ));
+        Ok(Trained { summary, inputs })
+    }
+
+    fn transformer(
+        &self,
+        previous: Option<Checkpoint>,
+        resume: bool,
+        observer: &mut dyn SessionObserver,
+    ) -> Result<Trained, SessionError> {
+        let spec = previous.as_ref().map_or(self.recipe.window, Checkpoint::window_spec);
+        let split = self.split(&previous);
+        let (windows, features, joints) = if self.follow {
+            let robot = self.wait_for_robot(observer)?;
+            let empty =
+                CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
+            (empty, JacobianFeatures::new(&robot), joint_names(&robot))
+        } else {
+            let robot = dataset_robot(self.data)?;
+            let features = JacobianFeatures::new(&robot);
+            let (w, skipped) =
+                load_or_build(self.data, &spec, &features, |k, n| observer.preprocessing("windows", k, n))?;
+            skip(observer, &skipped);
+            observer.message(&format!(
+                "{} windows of {} x {} values ({})",
+                w.count(),
+                spec.len,
+                w.width,
+                if w.hit { "from the cache" } else { "built and cached" }
+            ));
+            (w, features, joint_names(&robot))
+        };
+        // After the first shard exists, so that `shards/` of a generate directory is what is followed.
+        let mut follower = ShardFollower::new(&shard_dir(self.data));
+        let mut corpus =
+            Corpus { windows, train: Vec::new(), validation: Vec::new(), standardizer: Standardizer::fit_empty() };
+        if self.follow {
+            // Both splits need windows before the statistics can be fitted.
+            loop {
+                let new = follower.poll().map_err(|e| self.listing(e))?;
+                skip(observer, &corpus.add_shards(&new, &features, split.0, split.1));
+                if !corpus.train.is_empty() && !corpus.validation.is_empty() {
+                    break;
+                }
+                if self.stop.load(Ordering::Relaxed) {
+                    return Err(SessionError::Setup("interrupted while waiting for shards of both splits".into()));
+                }
+                std::thread::sleep(Duration::from_secs(2));
+            }
+        } else {
+            (corpus.train, corpus.validation) = split_windows(&corpus.windows, split.0, split.1);
+        }
+        let checkpoint = match previous {
+            Some(c) => c,
+            None => {
+                let standardizer = Standardizer::fit(&corpus.windows, &corpus.train);
+                let model = self.recipe.model.transformer(standardizer.columns.len(), spec.len);
+                model.check().map_err(TrainError::from)?;
+                let mut c =
+                    Checkpoint::new(NetworkConfig::Transformer(model), &spec, joints, Some(&features), &standardizer);
+                self.stamp(&mut c, split);
+                c
+            }
+        };
+        corpus.standardizer = checkpoint.standardizer();
+        observer.message(&format!(
+            "model: {}; {} training / {} validation windows",
+            checkpoint.model.describe(),
+            corpus.train.len(),
+            corpus.validation.len()
+        ));
+        // Messages of the growth step wait for the observer's next call (both need it mutably).
+        let notes = std::cell::RefCell::new(Vec::new());
+        let mut grow = |c: &mut Corpus| match follower.poll() {
+            Ok(new) if !new.is_empty() => {
+                let before = c.windows.count();
+                let skipped = c.add_shards(&new, &features, split.0, split.1);
+                let mut n = notes.borrow_mut();
+                n.extend(skipped.iter().map(|s| format!("warning: skipped {s}")));
+                n.push(format!(
+                    "follow: {} new shards, {} new windows ({} skipped)",
+                    new.len(),
+                    c.windows.count() - before,
+                    skipped.len()
+                ));
+            }
+            Ok(_) => {}
+            Err(e) => notes.borrow_mut().push(format!("warning: listing {}: {e}", self.data.display())),
+        };
+        let grow: Option<&mut dyn FnMut(&mut Corpus)> = if self.follow { Some(&mut grow) } else { None };
+        let mut relay = Relay { observer, notes: Some(&notes) };
+        let summary =
+            train(&mut corpus, grow, checkpoint, &self.recipe.train, self.out, resume, &mut relay, self.stop)?;
+        relay.flush();
+        self.finish(summary, Inputs::Windows(corpus.windows), observer)
+    }
+
+    fn physics(
+        &self,
+        previous: Option<Checkpoint>,
+        resume: bool,
+        observer: &mut dyn SessionObserver,
+    ) -> Result<Trained, SessionError> {
+        if self.follow {
+            return Err(SessionError::Setup(
+                "--follow trains the transformer only: the physics estimator's statistics need the whole dataset \
+                 (train with --model physics once the generation is done)"
+                    .into(),
+            ));
+        }
+        let spec = previous.as_ref().map_or(self.recipe.window, Checkpoint::window_spec);
+        let split = self.split(&previous);
+        let (generator_cfg, seed) = generator(self.data)?.ok_or_else(|| {
+            PhysicsError::Generator(format!(
+                "{} has no run manifest to take the generator configuration from (train the physics estimator on a \
+                 `dynforge generate` directory, or use --model transformer)",
+                self.data.display()
+            ))
+        })?;
+        let prior = match previous.as_ref().and_then(Checkpoint::parameter_prior) {
+            Some(p) => p,
+            None => {
+                observer
+                    .message(&format!("fitting the generator's parameter prior to {} robots", physics::PRIOR_ROBOTS));
+                physics::generator_prior(&generator_cfg, seed)?
+            }
+        };
+        let (set, skipped) =
+            physics::load_or_build(self.data, &spec, &prior, |k, n| observer.preprocessing("physics", k, n))?;
+        skip(observer, &skipped);
+        observer.message(&format!(
+            "physics of {} windows and {} recordings in {} prior coordinates ({})",
+            set.windows.len(),
+            set.recordings.len(),
+            prior.rank(),
+            if set.hit { "from the cache" } else { "computed and cached" }
+        ));
+        let source = PhysicsSource {
+            generator: generator_cfg,
+            seed: draw_seed(seed, Draw::Synthetic),
+            per_epoch: self.recipe.generated_per_epoch,
+        };
+        let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).map_err(SessionError::Setup)?;
+        let checkpoint = match previous {
+            Some(c) => c,
+            None => {
+                let model = self.recipe.model.physics(examples.shape()[1]);
+                model.check().map_err(TrainError::from)?;
+                let robot = dataset_robot(self.data)?;
+                let std = examples.standardizer().clone();
+                let mut c = Checkpoint::new(NetworkConfig::Physics(model), &spec, joint_names(&robot), None, &std);
+                c.prior = Some(PriorRecord::new(&prior));
+                self.stamp(&mut c, split);
+                c
+            }
+        };
+        observer.message(&format!(
+            "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
+             validation windows",
+            checkpoint.model.describe(),
+            examples.real(),
+            self.recipe.generated_per_epoch,
+            examples.validation_len()
+        ));
+        let mut relay = Relay { observer, notes: None };
+        let summary =
+            train(&mut examples, None, checkpoint, &self.recipe.train, self.out, resume, &mut relay, self.stop)?;
+        self.finish(summary, Inputs::Physics(set), observer)
+    }
+
+    fn listing(&self, e: std::io::Error) -> SessionError {
+        SessionError::Read(ReadError::Content { file: self.data.display().to_string(), problem: e.to_string() })
+    }
+
+    /// Waits until the dataset has a readable shard and returns its robot (`follow`, started with the generation).
+    fn wait_for_robot(&self, observer: &mut dyn SessionObserver) -> Result<dynforge_robot::Model, SessionError> {
+        let mut told = false;
+        loop {
+            match dataset_robot(self.data) {
+                Ok(m) => return Ok(m),
+                Err(e) if self.stop.load(Ordering::Relaxed) => {
+                    return Err(SessionError::Setup(format!("interrupted while waiting for shards: {e}")));
+                }
+                Err(_) => {
+                    if !told {
+                        observer.message(&format!("waiting for the first shard in {} ...", self.data.display()));
+                        told = true;
+                    }
+                    std::thread::sleep(Duration::from_secs(2));
+                }
+            }
+        }
+    }
+}
+
+fn joint_names(robot: &dynforge_robot::Model) -> Vec<String> {
+    robot.joints().iter().map(|j| j.name.clone()).collect()
+}
+
+fn skip(observer: &mut dyn SessionObserver, skipped: &[String]) {
+    for s in skipped {
+        observer.message(&format!("warning: skipped {s}"));
+    }
+}
+
+/// Passes the training loop's progress on to the session's observer, with the notes the follower left since.
+struct Relay<'a, 'b> {
+    observer: &'a mut (dyn SessionObserver + 'b),
+    notes: Option<&'a std::cell::RefCell<Vec<String>>>,
+}
+
+impl Relay<'_, '_> {
+    fn flush(&mut self) {
+        if let Some(n) = self.notes {
+            for text in n.borrow_mut().drain(..) {
+                self.observer.message(&text);
+            }
+        }
+    }
+}
+
+impl TrainObserver for Relay<'_, '_> {
+    fn step(&mut self, epoch: usize, batch: usize, batches: usize, loss: f64) {
+        self.flush();
+        self.observer.step(epoch, batch, batches, loss);
+    }
+
+    fn epoch(&mut self, m: &super::EpochMetrics, best: bool) {
+        self.flush();
+        self.observer.epoch(m, best);
+    }
+}
