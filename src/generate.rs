@@ -299,7 +299,7 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
 }
 
 pub fn worker(args: WorkerArgs) -> Result<()> {
-    let served = dynforge_coordinator::serve::serve(&args.dir, args.slot)?;
+    let served = dynforge_worker::serve::serve(&args.dir, args.slot)?;
     eprintln!("worker {}: served {served} jobs", args.slot);
     Ok(())
 }

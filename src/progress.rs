@@ -40,11 +40,13 @@ pub struct Bars {
     started: Instant,
     batch: usize,
     steps: usize,
+    /// Without a terminal: the last tenth of a preprocessing stage logged.
+    logged: usize,
 }
 
 impl Bars {
     pub fn new(batch: usize) -> Self {
-        Bars { bar: bar("{msg} {bar:40} {pos}/{len}"), started: Instant::now(), batch, steps: 0 }
+        Bars { bar: bar("{msg} {bar:40} {pos}/{len}"), started: Instant::now(), batch, steps: 0, logged: 0 }
     }
 
     fn line(&self, text: &str) {
@@ -89,6 +91,12 @@ impl TrainObserver for Bars {
 
 impl SessionObserver for Bars {
     fn preprocessing(&mut self, what: &str, done: usize, total: usize) {
+        // Logs (no terminal) get a line per tenth of the stage instead of a bar.
+        let tenth = (10 * done).checked_div(total).unwrap_or(0);
+        if self.bar.is_hidden() && tenth > self.logged {
+            eprintln!("{what}: {done}/{total} ({:.0} s)", self.started.elapsed().as_secs_f64());
+        }
+        self.logged = if done == 0 { 0 } else { tenth };
         self.bar.set_message(what.to_string());
         self.bar.set_length(total as u64);
         self.bar.set_position(done as u64);

@@ -11,5 +11,4 @@ pub mod ledger;
 pub mod manifest;
 pub mod plan;
 pub mod run;
-pub mod serve;
 pub mod verify;

@@ -16,7 +16,8 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use crate::error::{Context, IpcError};
 use crate::run::{self, RunId};
 use crate::services::{self, EventService, JobsClient, JobsService, Pending, StatusService, Svc};
-use crate::types::{JobReport, JobRequest, StatusMsg};
+use crate::types::{StatusMsg, WireReport, WireRequest};
+use dynforge_proto::job::{JobReport, JobRequest};
 
 /// A worker that has not answered a sent job yet is poked again this often (guards against lost wake-ups).
 pub const REPOKE_INTERVAL: Duration = Duration::from_millis(200);
@@ -190,7 +191,8 @@ impl Coordinator {
             return Err(IpcError::Busy { slot: k, job_id: busy.job_id });
         }
         slot.learn_worker();
-        let pending = slot.client.send_copy(*job).ctx(|| format!("sending job {} to slot {k}", job.job_id))?;
+        let pending =
+            slot.client.send_copy(WireRequest::from(job)).ctx(|| format!("sending job {} to slot {k}", job.job_id))?;
         if pending.number_of_server_connections() == 0 {
             return Err(IpcError::WorkerNotReady(k));
         }
@@ -256,11 +258,11 @@ impl Coordinator {
             let connected = pending.is_connected();
             let mut finished = false;
             while let Some(response) = pending.receive().ctx(|| format!("receiving from worker slot {k}"))? {
-                let report = *response;
+                let wire: WireReport = *response;
                 slot.last_heard = now;
                 slot.answered = true;
-                out.push((k, report));
-                if report.is_final() {
+                out.push((k, JobReport::from(&wire)));
+                if wire.is_final() {
                     finished = true;
                     break;
                 }

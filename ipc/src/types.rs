@@ -1,10 +1,13 @@
-//! The messages that cross the process boundary. All are `#[repr(C)]`, `Copy` and carry an explicit type name, so
+//! The messages as they cross the process boundary: fixed-size wire forms of the job contract
+//! (`dynforge_proto::job`) and the status record. All are `#[repr(C)]`, `Copy` and carry an explicit type name, so
 //! the coordinator and the worker binaries agree on them even when they are built separately.
+
+use dynforge_proto::job::{JobReport, JobRequest};
 
 use iceoryx2::prelude::ZeroCopySend;
 
 /// Capacity of [`FixedStr`] in bytes.
-pub const FIXED_STR_CAPACITY: usize = 128;
+pub const FIXED_STR_CAPACITY: usize = dynforge_proto::job::MESSAGE_CAPACITY;
 
 /// A short UTF-8 string of at most [`FIXED_STR_CAPACITY`] bytes stored inline (zero-padded), for reason codes and
 /// error messages. Longer input is truncated at a character boundary.
@@ -55,50 +58,69 @@ impl core::fmt::Display for FixedStr {
     }
 }
 
-/// A job as the coordinator sends it: simulate trajectory `trajectory` of robot `robot` of dataset seed `seed` with
-/// engine `engine`. `job_id` is the coordinator's identifier, echoed in every [`JobReport`].
+/// [`JobRequest`] on the wire.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("dynforge::JobRequest")]
-pub struct JobRequest {
-    pub job_id: u64,
-    pub seed: u64,
-    pub robot: u64,
-    pub trajectory: u32,
-    pub engine: u32,
+pub(crate) struct WireRequest {
+    job_id: u64,
+    seed: u64,
+    robot: u64,
+    trajectory: u32,
 }
 
-/// What a worker answers to one [`JobRequest`]: any number of `Progress`, then exactly one final report (`Done`,
-/// `Discarded` or `Failed`). The coordinator never delivers anything for a job after its final report.
+impl From<&JobRequest> for WireRequest {
+    fn from(j: &JobRequest) -> Self {
+        WireRequest { job_id: j.job_id, seed: j.seed, robot: j.robot, trajectory: j.trajectory }
+    }
+}
+
+impl From<&WireRequest> for JobRequest {
+    fn from(j: &WireRequest) -> Self {
+        JobRequest { job_id: j.job_id, seed: j.seed, robot: j.robot, trajectory: j.trajectory }
+    }
+}
+
+/// [`JobReport`] on the wire.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("dynforge::JobReport")]
-pub enum JobReport {
-    /// Still working; `permille` of the job done.
+pub(crate) enum WireReport {
     Progress { job_id: u64, permille: u32 },
-    /// Shard written.
     Done { job_id: u64, samples: u64, content_hash: u64 },
-    /// The simulation was discarded (reason code such as "timeout", "collision"); no shard.
     Discarded { job_id: u64, reason: FixedStr },
-    /// Worker-side error (I/O etc.). The coordinator also synthesizes one when a live worker drops a job without a
-    /// final report.
     Failed { job_id: u64, message: FixedStr },
 }
 
-impl JobReport {
-    /// The job this report belongs to.
-    pub fn job_id(&self) -> u64 {
-        match *self {
-            JobReport::Progress { job_id, .. }
-            | JobReport::Done { job_id, .. }
-            | JobReport::Discarded { job_id, .. }
-            | JobReport::Failed { job_id, .. } => job_id,
+impl WireReport {
+    pub(crate) fn is_final(&self) -> bool {
+        !matches!(self, WireReport::Progress { .. })
+    }
+}
+
+impl From<&JobReport> for WireReport {
+    fn from(r: &JobReport) -> Self {
+        match r {
+            &JobReport::Progress { job_id, permille } => WireReport::Progress { job_id, permille },
+            &JobReport::Done { job_id, samples, content_hash } => WireReport::Done { job_id, samples, content_hash },
+            JobReport::Discarded { job_id, reason } => {
+                WireReport::Discarded { job_id: *job_id, reason: reason.as_str().into() }
+            }
+            JobReport::Failed { job_id, message } => {
+                WireReport::Failed { job_id: *job_id, message: message.as_str().into() }
+            }
         }
     }
+}
 
-    /// Whether this is the job's last report (everything but `Progress`).
-    pub fn is_final(&self) -> bool {
-        !matches!(self, JobReport::Progress { .. })
+impl From<&WireReport> for JobReport {
+    fn from(r: &WireReport) -> Self {
+        match *r {
+            WireReport::Progress { job_id, permille } => JobReport::Progress { job_id, permille },
+            WireReport::Done { job_id, samples, content_hash } => JobReport::Done { job_id, samples, content_hash },
+            WireReport::Discarded { job_id, reason } => JobReport::Discarded { job_id, reason: reason.as_str().into() },
+            WireReport::Failed { job_id, message } => JobReport::Failed { job_id, message: message.as_str().into() },
+        }
     }
 }
 
@@ -140,10 +162,21 @@ mod tests {
     }
 
     #[test]
-    fn report_helpers() {
-        let p = JobReport::Progress { job_id: 3, permille: 10 };
-        let d = JobReport::Discarded { job_id: 4, reason: "collision".into() };
-        assert_eq!((p.job_id(), p.is_final()), (3, false));
-        assert_eq!((d.job_id(), d.is_final()), (4, true));
+    fn reports_cross_the_wire_whole_or_cut_at_the_capacity() {
+        let long = "x".repeat(300);
+        for r in [
+            JobReport::Progress { job_id: 3, permille: 10 },
+            JobReport::Done { job_id: 4, samples: 6500, content_hash: u64::MAX },
+            JobReport::Discarded { job_id: 5, reason: "collision".into() },
+            JobReport::Failed { job_id: 6, message: long.clone() },
+        ] {
+            let back = JobReport::from(&WireReport::from(&r));
+            match (&r, &back) {
+                (JobReport::Failed { .. }, JobReport::Failed { message, .. }) => assert_eq!(message, &long[..128]),
+                _ => assert_eq!(back, r),
+            }
+        }
+        let j = JobRequest { job_id: 1, seed: 2, robot: 3, trajectory: 4 };
+        assert_eq!(JobRequest::from(&WireRequest::from(&j)), j);
     }
 }

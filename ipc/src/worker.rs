@@ -13,7 +13,8 @@ use iceoryx2_bb_posix::signal::SignalHandler;
 use crate::error::{Context, IpcError};
 use crate::run::{self, RunId};
 use crate::services::{self, Active, EventService, JobsServer, JobsService, Svc};
-use crate::types::{JobReport, JobRequest};
+use crate::types::{WireReport, WireRequest};
+use dynforge_proto::job::{JobReport, JobRequest};
 
 /// How often a waiting worker checks that its coordinator is still alive.
 pub const COORDINATOR_CHECK_INTERVAL: Duration = Duration::from_millis(500);
@@ -121,7 +122,7 @@ impl Worker {
                 return Ok(None);
             }
             if let Some(request) = self.server.receive().ctx(|| format!("receiving a job in slot {}", self.slot))? {
-                let job = *request.payload();
+                let job = JobRequest::from(request.payload() as &WireRequest);
                 self.active = Some(request);
                 self.active_job = job.job_id;
                 return Ok(Some(job));
@@ -167,7 +168,7 @@ impl Worker {
             self.active = None;
             return Err(IpcError::JobAbandoned(r.job_id()));
         }
-        active.send_copy(*r).ctx(|| format!("sending a report for job {}", r.job_id()))?;
+        active.send_copy(WireReport::from(r)).ctx(|| format!("sending a report for job {}", r.job_id()))?;
         if r.is_final() {
             self.active = None;
         }

@@ -11,7 +11,7 @@ use common::{TestRun, Workers, process_cpu, start, thread_cpu, wait_ready};
 use dynforge_ipc::{Coordinator, IpcError, JobReport, JobRequest, StatusMsg, StatusReader};
 
 fn job(job_id: u64, seed: u64, robot: u64, trajectory: u32) -> JobRequest {
-    JobRequest { job_id, seed, robot, trajectory, engine: 0 }
+    JobRequest { job_id, seed, robot, trajectory }
 }
 
 /// Waits for the final report of the job in flight on slot `k` (other slots' reports are returned in `others`).
@@ -36,7 +36,7 @@ fn finals_of(coord: &mut Coordinator, slots: &[usize]) -> HashMap<usize, JobRepo
         for (slot, report) in coord.wait(Duration::from_millis(500)).unwrap() {
             assert!(slots.contains(&slot), "report {report:?} from slot {slot}");
             if report.is_final() {
-                assert!(out.insert(slot, report).is_none(), "second final report {report:?}");
+                assert!(out.insert(slot, report.clone()).is_none(), "second final report {report:?}");
             }
         }
         assert!(Instant::now() < deadline, "no final reports from all of {slots:?} within 10 s");
@@ -94,7 +94,7 @@ fn two_workers_answer_fifty_jobs_exactly_once() {
             for (k, r) in coord.wait(Duration::from_secs(1)).unwrap() {
                 assert_eq!(Some(r.job_id()), busy[k], "report {r:?} from slot {k}");
                 if r.is_final() {
-                    assert!(finals.insert(r.job_id(), r).is_none(), "second final report {r:?}");
+                    assert!(finals.insert(r.job_id(), r.clone()).is_none(), "second final report {r:?}");
                     busy[k] = None;
                 } else {
                     assert_eq!(r, JobReport::Progress { job_id: r.job_id(), permille: 500 });

@@ -5,6 +5,7 @@
 //! coordinator and its workers) is defined here exactly once, so that the generator, the worker, the shards and the
 //! trainer can never disagree about what column 17 means.
 
+pub mod job;
 pub mod labels;
 pub mod params;
 pub mod run_dir;

@@ -1,5 +1,6 @@
 //! dynforge's worker: turns one job (dataset seed, robot, trajectory, configuration) into a recording of 1 kHz joint
-//! data, or a discard with a reason.
+//! data, or a discard with a reason ([`job`] and the modules it chains), and serves a coordinator's jobs as the
+//! worker process ([`serve`]).
 
 // Index loops over the six joints mirror the equations they implement.
 #![allow(clippy::needless_range_loop)]
@@ -8,5 +9,6 @@ pub mod collision;
 pub mod control;
 pub mod engine;
 pub mod job;
+pub mod serve;
 pub mod simulate;
 pub mod trajectory;

@@ -1,21 +1,35 @@
-//! The worker process: serves jobs from the coordinator of a run directory until told to stop.
+//! The worker process: serves the jobs of a run directory's coordinator, over iceoryx2, until told to stop.
 
 use std::path::Path;
 
 use dynforge_ipc::{IpcError, JobReport, RunId, Worker};
-use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_proto::run_dir::{MANIFEST, SHARDS};
+use dynforge_robot::generator::GeneratorConfig;
 
-use crate::manifest::Manifest;
-use dynforge_proto::run_dir::SHARDS;
+use crate::job::{Job, Outcome, Runner};
+use crate::simulate::SimConfig;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
-    #[error("{0}: no run manifest (workers are started by `dynforge generate`)")]
-    NoManifest(String),
-    #[error(transparent)]
-    Manifest(#[from] crate::manifest::ManifestError),
+    #[error("{path}: {problem} (workers are started by `dynforge generate`)")]
+    Manifest { path: String, problem: String },
     #[error(transparent)]
     Ipc(#[from] IpcError),
+}
+
+/// What a worker takes from the run manifest: the robots' generator and the simulation settings (the coordinator
+/// owns the rest of the manifest and checks it before starting any worker).
+#[derive(serde::Deserialize)]
+struct JobSettings {
+    generator: GeneratorConfig,
+    sim: SimConfig,
+}
+
+fn settings(dir: &Path) -> Result<JobSettings, ServeError> {
+    let path = dir.join(MANIFEST);
+    let fail = |problem: String| ServeError::Manifest { path: path.display().to_string(), problem };
+    let text = std::fs::read_to_string(&path).map_err(|e| fail(e.to_string()))?;
+    toml::from_str(&text).map_err(|e| fail(format!("not a run manifest: {e}")))
 }
 
 /// Fault injection for tests of the coordinator's hung-worker deadline: when set to a number of seconds, every
@@ -25,10 +39,10 @@ pub const STALL_ENV: &str = "DYNFORGE_FAULT_WORKER_STALL";
 /// Serves slot `slot` of the run in `dir`. Returns when the coordinator stops the worker or goes away.
 pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
     let stall = std::env::var(STALL_ENV).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s > 0.0);
-    let manifest = Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.display().to_string()))?;
+    let settings = settings(dir)?;
     let run = RunId::for_dir(dir)?;
     let mut worker = Worker::new(&run, slot)?;
-    let mut runner = Runner::new(manifest.generator, manifest.sim);
+    let mut runner = Runner::new(settings.generator, settings.sim);
     let shards = dir.join(SHARDS);
     let mut served = 0;
     while let Some(request) = worker.next_job()? {
@@ -47,7 +61,7 @@ pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
             }
             Err(e) => {
                 eprintln!("robot {} trajectory {}: error: {e}", job.robot, job.trajectory);
-                JobReport::Failed { job_id, message: e.to_string().as_str().into() }
+                JobReport::Failed { job_id, message: e.to_string() }
             }
         };
         match worker.report(&report) {

@@ -1,0 +1,198 @@
+//! `generate`: the coordinator. Plans the jobs not yet in the ledger, starts the worker processes, then loops:
+//! [`dispatch`] hands jobs to idle workers and records every final report durably, [`liveness`] replaces dead or
+//! hung workers and re-queues their jobs, [`status`] tells displays and monitors how the run goes. The worker
+//! processes themselves are started and stopped by [`processes`].
+
+mod dispatch;
+mod liveness;
+mod processes;
+mod status;
+
+use std::collections::{HashMap, VecDeque};
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use dynforge_ipc::{Coordinator, IpcError, RunId};
+use dynforge_proto::run_dir::{LEDGER, LOGS, SHARDS, is_temporary};
+use dynforge_robot::generator::GeneratorConfig;
+use dynforge_worker::job::Job;
+use dynforge_worker::simulate::SimConfig;
+
+use crate::ledger::{Entry, Ledger, LedgerError};
+use crate::manifest::{Manifest, ManifestError};
+use crate::plan::{self, Partition};
+use processes::Processes;
+pub use status::{Observer, Progress};
+
+/// Everything `generate` needs.
+#[derive(Debug, Clone)]
+pub struct GenerateConfig {
+    pub dir: PathBuf,
+    pub seed: u64,
+    pub robots: u64,
+    pub trajectories: u32,
+    pub workers: usize,
+    pub partition: Partition,
+    pub generator: GeneratorConfig,
+    pub sim: SimConfig,
+    /// A job running longer than this marks its worker as hung: it is killed and replaced.
+    pub job_timeout: Duration,
+    /// A job whose worker died (or failed) this many times is recorded as failed.
+    pub max_attempts: u32,
+    /// Program and leading arguments that start a worker; `--dir DIR --slot K` are appended.
+    pub worker_command: Vec<OsString>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum GenerateError {
+    #[error("{dir}: cannot use as the output directory: {source}")]
+    Dir { dir: String, source: std::io::Error },
+    #[error("nothing to do: {0}")]
+    Empty(String),
+    #[error(transparent)]
+    Manifest(#[from] ManifestError),
+    #[error(transparent)]
+    Ledger(#[from] LedgerError),
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    #[error("starting worker {slot} ({program}): {source}")]
+    Spawn { slot: usize, program: String, source: std::io::Error },
+    #[error("interrupted: {finished} of {total} jobs are recorded; run the same command again to resume")]
+    Interrupted { finished: u64, total: u64 },
+}
+
+/// Removes temporary files that crashed writers left in the shard directory.
+fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
+    let mut n = 0;
+    for entry in std::fs::read_dir(shards)? {
+        let entry = entry?;
+        let name = entry.file_name().to_string_lossy().to_string();
+        if is_temporary(&name) {
+            std::fs::remove_file(entry.path())?;
+            n += 1;
+        }
+    }
+    Ok(n)
+}
+
+/// A generation in progress: the queue, what each worker runs, and the durable record.
+struct Run<'a> {
+    cfg: &'a GenerateConfig,
+    ledger: Ledger,
+    pending: VecDeque<Job>,
+    /// Per worker slot: its job and when it was sent.
+    running: Vec<Option<(Job, Instant)>>,
+    /// Failed attempts per job id.
+    attempts: HashMap<u64, u32>,
+    progress: Progress,
+    ipc: Coordinator,
+    procs: Processes,
+    interrupted: bool,
+    started: Instant,
+}
+
+/// Runs (or resumes) a generation. Returns the final progress.
+pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
+    if cfg.robots == 0 || cfg.trajectories == 0 || cfg.workers == 0 {
+        return Err(GenerateError::Empty(format!(
+            "--robots {}, --trajectories {} and --workers {} must all be at least 1",
+            cfg.robots, cfg.trajectories, cfg.workers
+        )));
+    }
+    let dir_err = |source| GenerateError::Dir { dir: cfg.dir.display().to_string(), source };
+    std::fs::create_dir_all(cfg.dir.join(SHARDS)).map_err(dir_err)?;
+    std::fs::create_dir_all(cfg.dir.join(LOGS)).map_err(dir_err)?;
+    let manifest =
+        Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
+    if let Some(before) = manifest.create_or_check(&cfg.dir)? {
+        observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
+    }
+    let (ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
+    let removed = remove_leftovers(&cfg.dir.join(SHARDS)).map_err(dir_err)?;
+    if removed > 0 {
+        observer.message(&format!("removed {removed} partial shard file(s) left by an interrupted run"));
+    }
+
+    let finished: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
+    let mut progress = Progress { slots: vec![None; cfg.workers], ..Progress::from_ledger(all.len() as u64, &entries) };
+    progress.resumed = progress.finished();
+    let pending: VecDeque<Job> =
+        all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
+    if pending.is_empty() {
+        observer.update(&progress);
+        return Ok(progress);
+    }
+    let workers = cfg.workers.min(pending.len());
+    progress.slots.truncate(workers);
+
+    let id = RunId::for_dir(&cfg.dir)?;
+    dynforge_ipc::cleanup_stale(&id)?;
+    let mut ipc = Coordinator::new(&id, workers)?;
+    let mut procs = Processes::new(cfg.worker_command.clone(), cfg.dir.clone(), workers);
+    for k in 0..workers {
+        procs.spawn(k)?;
+        ipc.attach_worker(k)?;
+    }
+    let mut run = Run {
+        cfg,
+        ledger,
+        pending,
+        running: vec![None; workers],
+        attempts: HashMap::new(),
+        progress,
+        ipc,
+        procs,
+        interrupted: false,
+        started: Instant::now(),
+    };
+    let (mut last_status, mut last_liveness) = (Instant::now() - Duration::from_secs(1), Instant::now());
+    loop {
+        run.dispatch()?;
+        if run.busy() == 0 && (run.pending.is_empty() || run.interrupted) {
+            break;
+        }
+        run.receive(observer)?;
+        if last_liveness.elapsed() >= LIVENESS_TICK {
+            last_liveness = Instant::now();
+            run.liveness(observer)?;
+        }
+        if last_status.elapsed() >= STATUS_TICK {
+            last_status = Instant::now();
+            run.publish(observer);
+        }
+    }
+    run.finish(observer)
+}
+
+/// How often dead and hung workers are looked for (a scan of the run's nodes costs ~0.1-0.3 ms per node).
+const LIVENESS_TICK: Duration = Duration::from_millis(100);
+/// How often displays and monitors are updated.
+const STATUS_TICK: Duration = Duration::from_millis(250);
+
+impl Run<'_> {
+    /// Workers with a job.
+    fn busy(&self) -> usize {
+        self.running.iter().filter(|r| r.is_some()).count()
+    }
+
+    /// Stops the workers, removes what killed writers left, and returns the final progress.
+    fn finish(mut self, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
+        // Tells the workers to stop, waits for them, and removes the run's shared-memory files.
+        let _ = self.ipc.shutdown(Duration::from_secs(5));
+        drop(self.procs);
+        // Workers killed mid-write (dead, hung, interrupted) leave partial temporary files; no writer is left now.
+        let dir_err = |source| GenerateError::Dir { dir: self.cfg.dir.display().to_string(), source };
+        remove_leftovers(&self.cfg.dir.join(SHARDS)).map_err(dir_err)?;
+        let p = &mut self.progress;
+        p.in_flight = 0;
+        p.slots = vec![None; self.running.len()];
+        p.rate = (p.finished() - p.resumed) as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+        observer.update(p);
+        if self.interrupted {
+            return Err(GenerateError::Interrupted { finished: p.finished(), total: p.total });
+        }
+        Ok(self.progress)
+    }
+}

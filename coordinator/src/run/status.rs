@@ -1,0 +1,93 @@
+//! How a run goes: counts by outcome for displays ([`Observer`]) and the live record monitors read
+//! (`dynforge status`, over iceoryx2's status service).
+
+use std::collections::{BTreeMap, HashMap};
+
+use dynforge_ipc::StatusMsg;
+use dynforge_worker::job::Job;
+
+use super::Run;
+use crate::ledger::{Entry, Status};
+
+/// How the run is going, for progress displays.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Progress {
+    /// Jobs of this run (after the partition), including those finished in earlier runs.
+    pub total: u64,
+    /// Finished before this invocation (resumed).
+    pub resumed: u64,
+    pub done: u64,
+    pub discarded: u64,
+    pub failed: u64,
+    pub reasons: BTreeMap<String, u64>,
+    pub in_flight: u32,
+    pub workers_alive: u32,
+    pub respawns: u32,
+    /// Finished jobs per second in this invocation.
+    pub rate: f64,
+    /// Per worker slot: the job it runs, if any.
+    pub slots: Vec<Option<Job>>,
+}
+
+impl Progress {
+    pub fn finished(&self) -> u64 {
+        self.done + self.discarded + self.failed
+    }
+
+    /// Counts one finished job.
+    pub fn record(&mut self, status: &Status) {
+        match status {
+            Status::Done { .. } => self.done += 1,
+            Status::Discarded { reason } => {
+                self.discarded += 1;
+                *self.reasons.entry(reason.clone()).or_default() += 1;
+            }
+            Status::Failed { .. } => self.failed += 1,
+        }
+    }
+
+    /// Counts of a ledger's records (the last record of a job wins) for a run of `total` jobs.
+    pub fn from_ledger(total: u64, entries: &[Entry]) -> Progress {
+        let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+        let mut p = Progress { total, ..Progress::default() };
+        for e in latest.values() {
+            p.record(&e.status);
+        }
+        p
+    }
+}
+
+/// Receives progress (a terminal display, logs, tests).
+pub trait Observer {
+    fn update(&mut self, p: &Progress);
+    fn message(&mut self, text: &str);
+}
+
+impl Run<'_> {
+    /// Brings the progress up to date and hands it to the observer and to monitors.
+    pub(super) fn publish(&mut self, observer: &mut dyn Observer) {
+        let p = &mut self.progress;
+        p.rate = (p.finished() - p.resumed) as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+        p.in_flight = self.running.iter().filter(|r| r.is_some()).count() as u32;
+        p.workers_alive = self.procs.alive() as u32;
+        p.slots = self.running.iter().map(|r| r.map(|(j, _)| j)).collect();
+        observer.update(p);
+        let remaining = p.total - p.finished();
+        let status = StatusMsg {
+            done: p.done,
+            discarded: p.discarded,
+            failed: p.failed,
+            in_flight: p.in_flight,
+            workers_alive: p.workers_alive,
+            total: p.total,
+            rate_per_s: p.rate,
+            updated_unix_ms: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_millis() as u64),
+            eta_s: if p.rate > 0.0 { remaining as f64 / p.rate } else { 0.0 },
+            coordinator_pid: std::process::id(),
+            respawns: p.respawns,
+        };
+        let _ = self.ipc.publish_status(&status);
+    }
+}
