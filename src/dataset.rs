@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use dynforge_proto::LABELS;
 use dynforge_trainer::data::dataset::stats;
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
@@ -49,25 +48,7 @@ pub fn run(cmd: DatasetCommand) -> Result<()> {
         args.windows.iter().map(|s| parse_spec(s)).collect::<Result<_>>()?
     };
     let s = stats(&args.dir, &specs)?;
-    println!("{}: {} robots, {} trajectories, {:.2} h of motion", args.dir.display(), s.robots, s.shards, s.hours);
-    println!("windows (len x stride, ssr): window span, utilisation, count");
-    for spec in &specs {
-        println!(
-            "  {:>3} x {:>3}, ssr {:>3}: {:>6.3} s, {:>5.2} %, {}",
-            spec.len,
-            spec.stride,
-            spec.ssr,
-            spec.span(1e-3),
-            100.0 * spec.utilisation(),
-            s.windows[&(spec.len, spec.stride, spec.ssr)]
-        );
-    }
-    if s.shards > 0 {
-        println!("label ranges:");
-        for (l, (lo, hi)) in LABELS.iter().zip(&s.label_ranges) {
-            println!("  {:<12} {:>12.6} .. {:<12.6} {}", l.name, lo, hi, l.kind.unit());
-        }
-    }
+    print!("{}: {}", args.dir.display(), s.report(&specs));
     if args.features
         && let Some(model) = &s.model
     {

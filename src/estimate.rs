@@ -2,11 +2,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
-use dynforge_proto::LABELS;
 use dynforge_robot::urdf;
-use dynforge_trainer::inference::Predictor;
+use dynforge_trainer::inference::estimate_to_urdf;
 
 #[derive(Args)]
 pub struct EstimateArgs {
@@ -32,68 +31,15 @@ pub struct EstimateArgs {
 }
 
 pub fn run(args: EstimateArgs) -> Result<()> {
-    let predictor = Predictor::load(&args.checkpoint)?;
     let base = args.urdf.as_ref().map(urdf::load).transpose()?;
-    let (rec, e) = predictor.estimate_file(&args.checkpoint, &args.log, base.as_ref())?;
-    // A log the torques of which cannot refine the estimate (no joint moves) keeps the estimator's, with a warning.
-    let refinement = match args.no_refine {
-        true => None,
-        false => predictor
-            .refine(&args.checkpoint, &rec, &e)
-            .inspect_err(|err| eprintln!("warning: the estimate is not refined by physics: {err}"))
-            .ok(),
-    };
-    let wanted = refinement.as_ref().map_or(e.labels, |r| r.labels);
-    let (model, notes) = dynforge_robot::parameters::with_labels(&rec.model, &wanted)
-        .with_context(|| format!("applying the estimate to the robot of {}", args.log.display()))?;
-    // What is reported is what the URDF carries: the labels after any projection into physics.
-    let values = dynforge_robot::parameters::labels(&model)?;
-    let out = args.out.unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
-    dynforge_proto::run_dir::write_atomic(&out, urdf::to_string(&model, &urdf::BaseLink::default()).as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    if args.json {
-        let parameters: serde_json::Map<String, serde_json::Value> = LABELS
-            .iter()
-            .enumerate()
-            .map(|(k, l)| {
-                let v = serde_json::json!({
-                    "value": values[k], "estimator": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()
-                });
-                (l.name.to_string(), v)
-            })
-            .collect();
-        let refined = refinement.as_ref().map(|r| {
-            serde_json::json!({
-                "identifiable": r.identifiable, "prior_from_validation": r.prior_from_validation,
-                "torque_nrmse_estimator": r.nrmse_network, "torque_nrmse_refined": r.nrmse_refined,
-            })
-        });
-        let summary = serde_json::json!({
-            "windows": e.windows, "parameters": parameters, "refinement": refined, "projections": notes, "urdf": out
-        });
-        println!("{}", serde_json::to_string_pretty(&summary)?);
-        return Ok(());
+    let out = args.out.clone().unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
+    let report = estimate_to_urdf(&args.checkpoint, &args.log, base.as_ref(), &out, !args.no_refine)?;
+    if let Some(w) = &report.warning {
+        eprintln!("warning: {w}");
     }
-    println!("{}: {} windows", args.log.display(), e.windows);
-    println!("{:<12} {:>12} {:>12} {:>12}  unit", "parameter", "estimate", "estimator", "spread");
-    for (k, l) in LABELS.iter().enumerate() {
-        println!("{:<12} {:>12.6} {:>12.6} {:>12.6}  {}", l.name, values[k], e.labels[k], e.spread[k], l.kind.unit());
+    match args.json {
+        true => println!("{}", serde_json::to_string_pretty(&report.json())?),
+        false => print!("{report}"),
     }
-    match &refinement {
-        Some(r) => println!(
-            "refined by physics ({} identifiable parameter combinations; prior spread from {}): torque NRMSE on this \
-             log {:.4} (estimator alone {:.4})",
-            r.identifiable,
-            if r.prior_from_validation { "the checkpoint's report.json" } else { "the training labels" },
-            r.nrmse_refined,
-            r.nrmse_network
-        ),
-        None if args.no_refine => println!("estimator output only (--no-refine)"),
-        None => println!("estimator output only (not refined: see the warning above)"),
-    }
-    for n in &notes {
-        println!("projected: {n}");
-    }
-    println!("URDF with the estimated parameters: {}", out.display());
     Ok(())
 }

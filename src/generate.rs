@@ -6,12 +6,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use dynforge_coordinator::ledger;
-use dynforge_coordinator::manifest::Manifest;
-use dynforge_coordinator::plan::{self, Partition};
+use dynforge_coordinator::plan::Partition;
 use dynforge_coordinator::run::{GenerateConfig, Observer, Progress, generate as run_generate};
 use dynforge_coordinator::verify::verify as run_verify;
-use dynforge_proto::run_dir::LEDGER;
 use dynforge_robot::generator::GeneratorConfig;
 use dynforge_worker::engine::EngineKind;
 use dynforge_worker::simulate::SimConfig;
@@ -81,19 +78,6 @@ impl Display {
     fn new() -> Self {
         Display { bars: None, last_log: Instant::now() }
     }
-
-    fn summary(p: &Progress) -> String {
-        let reasons = p.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect::<Vec<_>>().join(", ");
-        format!(
-            "done {} | discarded {}{} | failed {} | in flight {} | {:.1} jobs/s",
-            p.done,
-            p.discarded,
-            if reasons.is_empty() { String::new() } else { format!(" ({reasons})") },
-            p.failed,
-            p.in_flight,
-            p.rate
-        )
-    }
 }
 
 impl Observer for Display {
@@ -101,7 +85,7 @@ impl Observer for Display {
         if !std::io::stderr().is_terminal() {
             if self.last_log.elapsed() >= Duration::from_secs(5) || p.finished() == p.total {
                 self.last_log = Instant::now();
-                eprintln!("[{}/{}] {}", p.finished(), p.total, Display::summary(p));
+                eprintln!("[{}/{}] {}", p.finished(), p.total, p);
             }
             return;
         }
@@ -115,7 +99,7 @@ impl Observer for Display {
         });
         main.set_length(p.total);
         main.set_position(p.finished());
-        main.set_message(Display::summary(p));
+        main.set_message(p.to_string());
         while workers.len() < p.slots.len() {
             workers.push(multi.add(ProgressBar::new_spinner()));
         }
@@ -148,22 +132,8 @@ impl Drop for Display {
     }
 }
 
-/// This process's own CPU time (user + system) in seconds, from /proc (in USER_HZ = 100 ticks per second).
-fn own_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
-    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
-    Some(ticks / 100.0)
-}
-
 pub fn generate(args: GenerateArgs) -> Result<()> {
-    let generator = match &args.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            GeneratorConfig::from_toml(&text).with_context(|| format!("in {}", p.display()))?
-        }
-        None => GeneratorConfig::default(),
-    };
+    let generator = GeneratorConfig::load(args.config.as_deref())?;
     let engine = match args.engine {
         crate::simulate::Engine::Native => EngineKind::Native,
         crate::simulate::Engine::Rapier => EngineKind::Rapier,
@@ -200,67 +170,20 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
     let progress = run_generate(&cfg, &mut display)?;
     drop(display);
     let wall = start.elapsed().as_secs_f64();
-    let cpu = own_cpu_seconds()
-        .map_or(String::new(), |c| format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall));
+    let c = progress.cpu_seconds;
+    let cpu = format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall);
     println!(
         "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
-        progress.total,
-        Display::summary(&progress),
-        progress.resumed,
+        progress.total, progress, progress.resumed,
     );
     Ok(())
 }
 
 pub fn status(args: StatusArgs) -> Result<()> {
-    let run = dynforge_ipc::RunId::for_dir(&args.dir)?;
-    if let Some(mut reader) = dynforge_ipc::StatusReader::open(&run)?
-        && let Some(s) = reader.latest_timeout(Duration::from_millis(500))
-    {
-        if args.json {
-            let v = serde_json::json!({
-                "live": true, "total": s.total, "done": s.done, "discarded": s.discarded, "failed": s.failed,
-                "in_flight": s.in_flight, "workers_alive": s.workers_alive, "rate_per_s": s.rate_per_s,
-                "eta_s": s.eta_s, "respawns": s.respawns, "coordinator_pid": s.coordinator_pid,
-            });
-            println!("{v}");
-        } else {
-            println!(
-                "running (coordinator pid {}): {}/{} jobs finished: done {}, discarded {}, failed {}; {} in flight on {} workers; {:.1} jobs/s, ETA {:.0} s",
-                s.coordinator_pid,
-                s.done + s.discarded + s.failed,
-                s.total,
-                s.done,
-                s.discarded,
-                s.failed,
-                s.in_flight,
-                s.workers_alive,
-                s.rate_per_s,
-                s.eta_s
-            );
-        }
-        return Ok(());
-    }
-    let manifest = Manifest::load(&args.dir)?
-        .with_context(|| format!("{}: no run manifest (not a dynforge generate directory)", args.dir.display()))?;
-    let entries = ledger::read(&args.dir.join(LEDGER))?;
-    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
-    let p = Progress::from_ledger(total, &entries);
-    let pending = total - p.finished();
-    if args.json {
-        let v = serde_json::json!({
-            "live": false, "total": total, "done": p.done, "discarded": p.discarded, "failed": p.failed,
-            "reasons": p.reasons, "pending": pending,
-        });
-        println!("{v}");
-    } else {
-        println!(
-            "not running: {}/{total} jobs finished (done {}, discarded {} {:?}, failed {}); {pending} pending",
-            p.finished(),
-            p.done,
-            p.discarded,
-            p.reasons,
-            p.failed
-        );
+    let s = dynforge_coordinator::status::status(&args.dir)?;
+    match args.json {
+        true => println!("{}", s.json()),
+        false => println!("{s}"),
     }
     Ok(())
 }
@@ -272,25 +195,7 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
         bar.set_position(k as u64);
     })?;
     bar.finish_and_clear();
-    println!(
-        "{}: {} jobs planned: {} done, {} discarded {:?}, {} failed, {} pending",
-        args.dir.display(),
-        report.planned,
-        report.done,
-        report.discarded,
-        report.reasons,
-        report.failed,
-        report.pending
-    );
-    for m in &report.missing {
-        println!("missing: {m}");
-    }
-    for m in &report.extra {
-        println!("extra: {m}");
-    }
-    for (m, why) in &report.corrupt {
-        println!("corrupt: {m}: {why}");
-    }
+    print!("{}: {report}", args.dir.display());
     if !report.is_ok() {
         bail!("{} missing, {} extra, {} corrupt", report.missing.len(), report.extra.len(), report.corrupt.len());
     }

@@ -70,23 +70,7 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         });
         println!("{}", serde_json::to_string_pretty(&summary)?);
     } else {
-        println!(
-            "{} log(s), {} torque rows, {} identifiable parameter combinations",
-            args.logs.len(),
-            ne.rows(),
-            c.rank
-        );
-        println!("{:<12} {:>12} {:>12}  unit", "parameter", "calibrated", "urdf");
-        for (k, l) in LABELS.iter().enumerate() {
-            println!("{:<12} {:>12.6} {:>12.6}  {}", l.name, c.labels[k], c.before[k], l.kind.unit());
-        }
-        println!(
-            "torque NRMSE on the logs: calibrated {:.4}, URDF as given {:.4}, least squares (base parameters) {:.4}",
-            c.nrmse_after, c.nrmse_before, c.nrmse_least_squares
-        );
-        for n in &c.projections {
-            println!("projected: {n}");
-        }
+        print!("{} log(s), {} torque rows, {c}", args.logs.len(), ne.rows());
         println!("calibrated URDF: {}", out.display());
     }
     Ok(())

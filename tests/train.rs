@@ -334,6 +334,21 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     }
     friction_errors.sort_by(f64::total_cmp);
     assert!(friction_errors[6] < 0.02, "median relative friction error {friction_errors:?}");
+    // The written URDF loads in Pinocchio and MuJoCo (both refuse a body outside the triangle inequality), with
+    // the masses the estimate gave.
+    if let Some(python) = dynforge_testkit::reference_python() {
+        let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/load_urdf.py");
+        let out = dynforge_testkit::run_python(&python, &script, &[urdf.to_str().unwrap()], "");
+        let loaded: serde_json::Value = serde_json::from_str(&out).unwrap();
+        for tool in ["pinocchio", "mujoco"] {
+            let masses: Vec<f64> = loaded[tool].as_array().unwrap().iter().map(|m| m.as_f64().unwrap()).collect();
+            assert_eq!(masses.len(), 6, "{tool}: {loaded}");
+            for link in 2..=6 {
+                let k = dynforge_proto::LABELS.iter().position(|l| l.name == format!("mass_l{link}")).unwrap();
+                assert!((masses[link - 1] - written[k]).abs() <= 1e-9 * written[k], "{tool} link {link}: {loaded}");
+            }
+        }
+    }
 
     // What the physics estimator cannot do is refused with the reason: following a generation, a folder of shards
     // without the generator's manifest.

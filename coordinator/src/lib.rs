@@ -11,4 +11,5 @@ pub mod ledger;
 pub mod manifest;
 pub mod plan;
 pub mod run;
+pub mod status;
 pub mod verify;

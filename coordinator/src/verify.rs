@@ -38,6 +38,27 @@ impl Report {
     }
 }
 
+impl std::fmt::Display for Report {
+    /// The counts, then one line per missing, extra and corrupt shard.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{} jobs planned: {} done, {} discarded {:?}, {} failed, {} pending",
+            self.planned, self.done, self.discarded, self.reasons, self.failed, self.pending
+        )?;
+        for m in &self.missing {
+            writeln!(f, "missing: {m}")?;
+        }
+        for m in &self.extra {
+            writeln!(f, "extra: {m}")?;
+        }
+        for (m, why) in &self.corrupt {
+            writeln!(f, "corrupt: {m}: {why}")?;
+        }
+        Ok(())
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum VerifyError {
     #[error("{0}: no run manifest here (not a dynforge generate directory)")]

@@ -57,3 +57,24 @@ pub fn calibrate(model: &Model, ne: &NormalEquations, spread: f64) -> Result<Cal
         projections,
     })
 }
+
+/// `N identifiable parameter combinations`, the labels calibrated beside the description's, the torque NRMSE of
+/// each, and the projections.
+impl std::fmt::Display for Calibration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "{} identifiable parameter combinations", self.rank)?;
+        writeln!(f, "{:<12} {:>12} {:>12}  unit", "parameter", "calibrated", "urdf")?;
+        for (k, l) in LABELS.iter().enumerate() {
+            writeln!(f, "{:<12} {:>12.6} {:>12.6}  {}", l.name, self.labels[k], self.before[k], l.kind.unit())?;
+        }
+        writeln!(
+            f,
+            "torque NRMSE on the logs: calibrated {:.4}, URDF as given {:.4}, least squares (base parameters) {:.4}",
+            self.nrmse_after, self.nrmse_before, self.nrmse_least_squares
+        )?;
+        for n in &self.projections {
+            writeln!(f, "projected: {n}")?;
+        }
+        Ok(())
+    }
+}

@@ -25,6 +25,7 @@ pub mod model;
 pub mod parameters;
 pub mod rng;
 pub mod spatial;
+pub mod summary;
 pub mod urdf;
 
 pub use data::Data;

@@ -166,6 +166,14 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     run.finish(observer)
 }
 
+/// This process's CPU time (user + system) in seconds, from /proc (in USER_HZ = 100 ticks per second).
+fn own_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 /// How often dead and hung workers are looked for (a scan of the run's nodes costs ~0.1-0.3 ms per node).
 const LIVENESS_TICK: Duration = Duration::from_millis(100);
 /// How often displays and monitors are updated.
@@ -189,6 +197,7 @@ impl Run<'_> {
         p.in_flight = 0;
         p.slots = vec![None; self.running.len()];
         p.rate = (p.finished() - p.resumed) as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+        p.cpu_seconds = own_cpu_seconds().unwrap_or(0.0);
         observer.update(p);
         if self.interrupted {
             return Err(GenerateError::Interrupted { finished: p.finished(), total: p.total });

@@ -27,6 +27,8 @@ pub struct Progress {
     pub rate: f64,
     /// Per worker slot: the job it runs, if any.
     pub slots: Vec<Option<Job>>,
+    /// CPU seconds the coordinator process used (at the end of a run; 0 where the OS does not say).
+    pub cpu_seconds: f64,
 }
 
 impl Progress {
@@ -54,6 +56,23 @@ impl Progress {
             p.record(&e.status);
         }
         p
+    }
+}
+
+impl std::fmt::Display for Progress {
+    /// One line: counts by outcome (discards by reason), in flight, rate.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let reasons = self.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect::<Vec<_>>().join(", ");
+        write!(
+            f,
+            "done {} | discarded {}{} | failed {} | in flight {} | {:.1} jobs/s",
+            self.done,
+            self.discarded,
+            if reasons.is_empty() { String::new() } else { format!(" ({reasons})") },
+            self.failed,
+            self.in_flight,
+            self.rate
+        )
     }
 }
 

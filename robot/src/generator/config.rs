@@ -108,6 +108,14 @@ impl GeneratorConfig {
         Ok(c)
     }
 
+    /// The configuration in the TOML file `path`, or the default one without a file; errors name the file.
+    pub fn load(path: Option<&std::path::Path>) -> Result<Self, ConfigError> {
+        let Some(path) = path else { return Ok(GeneratorConfig::default()) };
+        let text =
+            std::fs::read_to_string(path).map_err(|e| ConfigError(format!("reading {}: {e}", path.display())))?;
+        GeneratorConfig::from_toml(&text).map_err(|e| ConfigError(format!("in {}: {}", path.display(), e.0)))
+    }
+
     /// Checks every range can only produce physical robots.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |m: String| Err(ConfigError(m));

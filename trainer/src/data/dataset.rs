@@ -58,6 +58,34 @@ pub struct Stats {
     pub model: Option<Model>,
 }
 
+impl Stats {
+    /// Robots, trajectories, hours, the windows of each geometry in `specs` and the label ranges, as text.
+    pub fn report(&self, specs: &[WindowSpec]) -> String {
+        use std::fmt::Write as _;
+        let mut out = format!("{} robots, {} trajectories, {:.2} h of motion\n", self.robots, self.shards, self.hours);
+        out.push_str("windows (len x stride, ssr): window span, utilisation, count\n");
+        for spec in specs {
+            let _ = writeln!(
+                out,
+                "  {:>3} x {:>3}, ssr {:>3}: {:>6.3} s, {:>5.2} %, {}",
+                spec.len,
+                spec.stride,
+                spec.ssr,
+                spec.span(GRID_DT),
+                100.0 * spec.utilisation(),
+                self.windows.get(&(spec.len, spec.stride, spec.ssr)).copied().unwrap_or(0)
+            );
+        }
+        if self.shards > 0 {
+            out.push_str("label ranges:\n");
+            for (l, (lo, hi)) in dynforge_proto::LABELS.iter().zip(&self.label_ranges) {
+                let _ = writeln!(out, "  {:<12} {:>12.6} .. {:<12.6} {}", l.name, lo, hi, l.kind.unit());
+            }
+        }
+        out
+    }
+}
+
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
 pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, ReadError> {
     let paths = list_shards(dir).map_err(|e| ReadError::Content {

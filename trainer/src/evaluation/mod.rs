@@ -60,13 +60,17 @@ impl Report {
             "# Validation of {} (epoch {})\n\nPer window (the paper's protocol; RMSE in standardised units):\n\n",
             self.checkpoint, self.epoch
         );
-        out.push_str(&report::tables(&self.windows));
+        out.push_str(&report::tables(&self.windows, "Overall"));
         let groups: Vec<String> = report::group_r2(&self.windows).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
         out.push_str(&format!("\nMean R2 per group: {}\n", groups.join(", ")));
         out.push_str(&format!(
-            "\nPer robot ({} robots, each the mean of its windows): R2 = {:.4}, RMSE = {:.4}\n",
-            self.robots.count, self.robots.r2, self.robots.rmse
+            "\nPer robot ({} validation robots, each estimated from all its recordings: the transformer averages their \
+             windows, the physics estimator sums their evidence):\n\n",
+            self.robots.count
         ));
+        out.push_str(&report::tables(&self.robots, "Overall per robot"));
+        let groups: Vec<String> = report::group_r2(&self.robots).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
+        out.push_str(&format!("\nMean R2 per group: {}\n", groups.join(", ")));
         if let Some(t) = &self.torque {
             out.push_str(&format!(
                 "\n**Torque check** ({} validation recordings; inverse dynamics vs recorded torque, NRMSE per joint)\n\n",
@@ -101,8 +105,8 @@ fn per_robot_mean(
     let mut acc: BTreeMap<u64, ([f64; NUM_LABELS], usize, [f64; NUM_LABELS])> = BTreeMap::new();
     for ((r, p), t) in robots.iter().zip(predicted).zip(truth) {
         let e = acc.entry(*r).or_insert(([0.0; NUM_LABELS], 0, *t));
-        for k in 0..NUM_LABELS {
-            e.0[k] += p[k];
+        for (s, v) in e.0.iter_mut().zip(p) {
+            *s += v;
         }
         e.1 += 1;
     }

@@ -38,8 +38,8 @@ fn table(out: &mut String, s: &Scores, title: &str, row: &str, rows: &[usize], k
     out.push('\n');
 }
 
-/// The three tables and the overall line, in Markdown.
-pub fn tables(s: &Scores) -> String {
+/// The three tables and the overall line (`overall`, e.g. "Overall"), in Markdown.
+pub fn tables(s: &Scores, overall: &str) -> String {
     let mut out = String::new();
     use LabelKind::*;
     table(
@@ -52,7 +52,7 @@ pub fn tables(s: &Scores) -> String {
     );
     table(&mut out, s, "Mass and centre of mass per link", "Link", &[2, 3, 4, 5, 6], &[(Mass, "Mass"), (Com, "COM")]);
     table(&mut out, s, "Inertia per link", "Link", &[1, 2, 3, 4, 5, 6], &[(Ixx, "Ixx"), (Iyy, "Iyy"), (Izz, "Izz")]);
-    let _ = writeln!(out, "**Overall** ({} samples): R2 = {:.4}, RMSE = {:.4}", s.count, s.r2, s.rmse);
+    let _ = writeln!(out, "**{overall}** ({} samples): R2 = {:.4}, RMSE = {:.4}", s.count, s.r2, s.rmse);
     out
 }
 
@@ -91,10 +91,10 @@ mod tests {
         for (k, t) in s.targets.iter_mut().enumerate() {
             t.r2 = 0.5 + k as f64 / 1000.0;
         }
-        let md = tables(&s);
-        for k in 0..NUM_LABELS {
+        let md = tables(&s, "Overall");
+        for (k, label) in LABELS.iter().enumerate() {
             let cell = format!(" {:.4} ", 0.5 + k as f64 / 1000.0);
-            assert_eq!(md.matches(&cell).count(), 1, "label {} in\n{md}", LABELS[k].name);
+            assert_eq!(md.matches(&cell).count(), 1, "label {} in\n{md}", label.name);
         }
         assert_eq!(group_r2(&s).len(), 5);
     }

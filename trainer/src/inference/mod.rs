@@ -3,6 +3,7 @@
 //! whole (more data is sharper evidence, not more votes). Both report the spread of their per-window predictions.
 
 mod physics;
+mod report;
 
 use std::path::Path;
 
@@ -20,6 +21,7 @@ use crate::data::physics::{features, recording_evidence};
 use crate::model::Network;
 use crate::training::predict;
 pub use physics::{normal_equations, physical_parameters, recording_error};
+pub use report::{EstimateReport, estimate_to_urdf};
 
 #[derive(Debug, thiserror::Error)]
 pub enum InferenceError {

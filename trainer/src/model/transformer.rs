@@ -76,10 +76,10 @@ impl TransformerConfig {
         if self.inputs == 0 || self.seq_len == 0 || self.layers == 0 || self.heads == 0 || self.patch == 0 {
             return fail("inputs, sequence length, layers, heads and patch must be positive".into());
         }
-        if self.d_model % self.heads != 0 {
+        if !self.d_model.is_multiple_of(self.heads) {
             return fail(format!("embedding size {} is not a multiple of the {} heads", self.d_model, self.heads));
         }
-        if self.seq_len % self.patch != 0 {
+        if !self.seq_len.is_multiple_of(self.patch) {
             return fail(format!("sequence length {} is not a multiple of the patch {}", self.seq_len, self.patch));
         }
         if !(0.0..1.0).contains(&self.dropout) {

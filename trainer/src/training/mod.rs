@@ -93,10 +93,10 @@ pub struct EpochMetrics {
     pub validation_r2: f64,
     pub validation_rmse: f64,
     pub windows_per_second: f64,
-    /// Wall-clock seconds of this epoch's training steps.
+    /// Wall-clock seconds of this epoch: preparing its examples and its training steps (not validation).
     pub seconds: f64,
-    /// Process CPU seconds (user + system, all threads) of this epoch's training steps: the cost measure for
-    /// comparing designs on accuracy per CPU-hour.
+    /// Process CPU seconds (user + system, all threads) of the same span: the cost measure for comparing designs on
+    /// accuracy per CPU-hour.
     #[serde(default)]
     pub cpu_seconds: f64,
 }
@@ -245,7 +245,7 @@ where
 
 /// The permutation of the training windows in `epoch`.
 fn epoch_order(seed: u64, epoch: usize, n: usize) -> Vec<usize> {
-    let mut rng = Rng::stream(seed, &[0x6f72_6465_72, epoch as u64]);
+    let mut rng = Rng::stream(seed, &[0x6f_7264_6572, epoch as u64]);
     let mut order: Vec<usize> = (0..n).collect();
     for i in (1..n).rev() {
         order.swap(i, rng.below(i + 1));
@@ -393,6 +393,10 @@ pub fn train<E: Examples>(
 
     let mut interrupted = false;
     while state.epoch < cfg.epochs && !state.stopped_early {
+        // An epoch's cost includes preparing its examples (the physics estimator draws and featurises its generated
+        // robots here), not only the gradient steps.
+        let started = Instant::now();
+        let cpu_started = process_cpu_seconds();
         if let Some(g) = grow.as_mut() {
             g(examples);
         }
@@ -400,8 +404,6 @@ pub fn train<E: Examples>(
         let batches = examples.train_len().div_ceil(cfg.batch);
         let schedule = Schedule::new(cfg.lr, cfg.warmup, cfg.epochs * batches);
         let order = epoch_order(cfg.seed, state.epoch, examples.train_len());
-        let started = Instant::now();
-        let cpu_started = process_cpu_seconds();
         let mut trained = 0usize;
         for b in state.batch_in_epoch..batches {
             if stop.load(Ordering::Relaxed) {

@@ -1,0 +1,101 @@
+//! `dynforge status`: how a generation stands, live from its coordinator (the status service) or, when none runs,
+//! from its ledger.
+
+use std::path::Path;
+use std::time::Duration;
+
+use dynforge_ipc::{RunId, StatusMsg, StatusReader};
+use dynforge_proto::run_dir::LEDGER;
+
+use crate::ledger;
+use crate::manifest::Manifest;
+use crate::plan;
+use crate::run::Progress;
+
+#[derive(Debug, thiserror::Error)]
+pub enum StatusError {
+    #[error("{0}: no run manifest (not a dynforge generate directory)")]
+    NoManifest(String),
+    #[error(transparent)]
+    Manifest(#[from] crate::manifest::ManifestError),
+    #[error(transparent)]
+    Ledger(#[from] ledger::LedgerError),
+    #[error(transparent)]
+    Ipc(#[from] dynforge_ipc::IpcError),
+}
+
+/// A run's standing.
+pub enum RunStatus {
+    /// A coordinator runs and published this.
+    Live(StatusMsg),
+    /// None runs: the ledger's counts for the manifest's jobs.
+    Stopped { progress: Progress, pending: u64 },
+}
+
+/// The standing of the run in `dir`.
+pub fn status(dir: &Path) -> Result<RunStatus, StatusError> {
+    let run = RunId::for_dir(dir)?;
+    if let Some(mut reader) = StatusReader::open(&run)?
+        && let Some(s) = reader.latest_timeout(Duration::from_millis(500))
+    {
+        return Ok(RunStatus::Live(s));
+    }
+    let manifest = Manifest::load(dir)?.ok_or_else(|| StatusError::NoManifest(dir.display().to_string()))?;
+    let entries = ledger::read(&dir.join(LEDGER))?;
+    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
+    let progress = Progress::from_ledger(total, &entries);
+    let pending = total.saturating_sub(progress.finished());
+    Ok(RunStatus::Stopped { progress, pending })
+}
+
+impl RunStatus {
+    /// The same figures as JSON (`live` tells which kind).
+    pub fn json(&self) -> serde_json::Value {
+        match self {
+            RunStatus::Live(s) => serde_json::json!({
+                "live": true, "total": s.total, "done": s.done, "discarded": s.discarded, "failed": s.failed,
+                "in_flight": s.in_flight, "workers_alive": s.workers_alive, "rate_per_s": s.rate_per_s,
+                "eta_s": s.eta_s, "respawns": s.respawns, "coordinator_pid": s.coordinator_pid,
+            }),
+            RunStatus::Stopped { progress: p, pending } => serde_json::json!({
+                "live": false, "total": p.total, "done": p.done, "discarded": p.discarded, "failed": p.failed,
+                "reasons": p.reasons, "pending": pending,
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for RunStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunStatus::Live(s) => write!(
+                f,
+                "running (coordinator pid {}): {}/{} jobs finished: done {}, discarded {}, failed {}; {} in flight on {} \
+                 workers; {:.1} jobs/s, ETA {:.0} s",
+                s.coordinator_pid,
+                s.done + s.discarded + s.failed,
+                s.total,
+                s.done,
+                s.discarded,
+                s.failed,
+                s.in_flight,
+                s.workers_alive,
+                s.rate_per_s,
+                s.eta_s
+            ),
+            RunStatus::Stopped { progress: p, pending } => {
+                let reasons: Vec<String> = p.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
+                write!(
+                    f,
+                    "not running: {}/{} jobs finished (done {}, discarded {}{}, failed {}); {pending} pending",
+                    p.finished(),
+                    p.total,
+                    p.done,
+                    p.discarded,
+                    if reasons.is_empty() { String::new() } else { format!(": {}", reasons.join(", ")) },
+                    p.failed
+                )
+            }
+        }
+    }
+}

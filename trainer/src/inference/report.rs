@@ -1,0 +1,118 @@
+//! `dynforge estimate` as one call: a recording's estimate, refined by physics, written into the robot's URDF, and
+//! what to tell the user about it.
+
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::{LABELS, NUM_LABELS};
+use dynforge_robot::{Model, parameters, urdf};
+
+use super::{Estimate, InferenceError, Predictor, Refinement};
+
+/// What `estimate` found and wrote.
+pub struct EstimateReport {
+    pub log: PathBuf,
+    /// The labels the URDF carries (the estimate after any projection into physics) [SI].
+    pub values: [f64; NUM_LABELS],
+    /// The estimator's own output and spread.
+    pub estimate: Estimate,
+    /// The refinement by the log's torques (`None` if not asked for, or if the log cannot refine: then `warning`).
+    pub refinement: Option<Refinement>,
+    pub warning: Option<String>,
+    pub projections: Vec<String>,
+    pub urdf: PathBuf,
+}
+
+/// Estimates the robot of the recording `log` with the checkpoint in `dir` (the robot from the log's
+/// `/robot_description` unless `model` is given), refines it by the log's torques if `refine`, and writes the URDF
+/// with the result to `out` (atomically). A log whose torques cannot refine (no joint moves) keeps the estimator's
+/// output, with a warning.
+pub fn estimate_to_urdf(
+    dir: &Path,
+    log: &Path,
+    model: Option<&Model>,
+    out: &Path,
+    refine: bool,
+) -> Result<EstimateReport, InferenceError> {
+    let predictor = Predictor::load(dir)?;
+    let (rec, estimate) = predictor.estimate_file(dir, log, model)?;
+    let (refinement, warning) = match refine {
+        false => (None, None),
+        true => match predictor.refine(dir, &rec, &estimate) {
+            Ok(r) => (Some(r), None),
+            Err(e) => (None, Some(format!("the estimate is not refined by physics: {e}"))),
+        },
+    };
+    let wanted = refinement.as_ref().map_or(estimate.labels, |r| r.labels);
+    let bad = |e: &dyn std::fmt::Display| InferenceError::Recording {
+        file: log.display().to_string(),
+        problem: e.to_string(),
+    };
+    let (robot, projections) = parameters::with_labels(&rec.model, &wanted).map_err(|e| bad(&e))?;
+    // What is reported is what the URDF carries: the labels after any projection into physics.
+    let values = parameters::labels(&robot).map_err(|e| bad(&e))?;
+    dynforge_proto::run_dir::write_atomic(out, urdf::to_string(&robot, &urdf::BaseLink::default()).as_bytes())
+        .map_err(|e| InferenceError::Recording { file: out.display().to_string(), problem: e.to_string() })?;
+    Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, urdf: out.into() })
+}
+
+impl EstimateReport {
+    pub fn json(&self) -> serde_json::Value {
+        let e = &self.estimate;
+        let parameters: serde_json::Map<String, serde_json::Value> = LABELS
+            .iter()
+            .enumerate()
+            .map(|(k, l)| {
+                let v = serde_json::json!({
+                    "value": self.values[k], "estimator": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()
+                });
+                (l.name.to_string(), v)
+            })
+            .collect();
+        let refined = self.refinement.as_ref().map(|r| {
+            serde_json::json!({
+                "identifiable": r.identifiable, "prior_from_validation": r.prior_from_validation,
+                "torque_nrmse_estimator": r.nrmse_network, "torque_nrmse_refined": r.nrmse_refined,
+            })
+        });
+        serde_json::json!({
+            "windows": e.windows, "parameters": parameters, "refinement": refined, "projections": self.projections,
+            "urdf": self.urdf,
+        })
+    }
+}
+
+impl std::fmt::Display for EstimateReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let e = &self.estimate;
+        writeln!(f, "{}: {} windows", self.log.display(), e.windows)?;
+        writeln!(f, "{:<12} {:>12} {:>12} {:>12}  unit", "parameter", "estimate", "estimator", "spread")?;
+        for (k, l) in LABELS.iter().enumerate() {
+            writeln!(
+                f,
+                "{:<12} {:>12.6} {:>12.6} {:>12.6}  {}",
+                l.name,
+                self.values[k],
+                e.labels[k],
+                e.spread[k],
+                l.kind.unit()
+            )?;
+        }
+        match (&self.refinement, &self.warning) {
+            (Some(r), _) => writeln!(
+                f,
+                "refined by physics ({} identifiable parameter combinations; prior spread from {}): torque NRMSE on \
+                 this log {:.4} (estimator alone {:.4})",
+                r.identifiable,
+                if r.prior_from_validation { "the checkpoint's report.json" } else { "the training labels" },
+                r.nrmse_refined,
+                r.nrmse_network
+            )?,
+            (None, Some(_)) => writeln!(f, "estimator output only (not refined: see the warning above)")?,
+            (None, None) => writeln!(f, "estimator output only (--no-refine)")?,
+        }
+        for n in &self.projections {
+            writeln!(f, "projected: {n}")?;
+        }
+        writeln!(f, "URDF with the estimated parameters: {}", self.urdf.display())
+    }
+}
