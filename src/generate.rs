@@ -32,8 +32,8 @@ pub struct GenerateArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Simulation engine.
-    #[arg(long, value_enum, default_value_t = crate::simulate::Engine::Native)]
-    engine: crate::simulate::Engine,
+    #[arg(long, value_enum, default_value_t = EngineKind::Native)]
+    engine: EngineKind,
     /// Run only partition i of n (robots r with r % n == i), to split one dataset over several hosts.
     #[arg(long, default_value = "0/1")]
     partition: Partition,
@@ -134,13 +134,11 @@ impl Drop for Display {
 
 pub fn generate(args: GenerateArgs) -> Result<()> {
     let generator = GeneratorConfig::load(args.config.as_deref())?;
-    let engine = match args.engine {
-        crate::simulate::Engine::Native => EngineKind::Native,
-        crate::simulate::Engine::Rapier => EngineKind::Rapier,
+    let engine = args.engine;
+    let job_timeout = match Duration::try_from_secs_f64(args.job_timeout) {
+        Ok(d) if !d.is_zero() => d,
+        _ => bail!("--job-timeout {}: expected a positive finite number of seconds", args.job_timeout),
     };
-    if args.job_timeout.is_nan() || args.job_timeout <= 0.0 {
-        bail!("--job-timeout must be positive");
-    }
     let workers = args.workers.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let exe = std::env::current_exe().context("locating the dynforge executable to start workers")?;
     let cfg = GenerateConfig {
@@ -152,7 +150,7 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         partition: args.partition,
         generator,
         sim: SimConfig { engine, ..SimConfig::default() },
-        job_timeout: Duration::from_secs_f64(args.job_timeout),
+        job_timeout,
         max_attempts: 3,
         worker_command: vec![exe.into(), "worker".into()],
     };

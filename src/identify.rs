@@ -4,9 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use dynforge_identify::{NormalEquations, calibrate};
-use dynforge_proto::LABELS;
-use dynforge_recording::read;
+use dynforge_identify::calibrate_files;
+use dynforge_proto::run_dir::write_atomic;
 use dynforge_robot::urdf;
 
 #[derive(Args)]
@@ -33,45 +32,14 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     if !(args.spread > 0.0 && args.spread.is_finite()) {
         bail!("--spread {} is not a positive number", args.spread);
     }
-    let mut model = match &args.urdf {
-        Some(p) => Some(urdf::load(p)?),
-        None => None,
-    };
-    let mut ne: Option<NormalEquations> = None;
-    for log in &args.logs {
-        let p = read(log, model.as_ref())?;
-        let this = NormalEquations::of(&p.model, &p.trajectory)
-            .with_context(|| format!("identifying from {}", log.display()))?;
-        match &mut ne {
-            Some(sum) => sum.merge(&this),
-            None => ne = Some(this),
-        }
-        model.get_or_insert(p.model);
-    }
-    let (Some(model), Some(ne)) = (model, ne) else { bail!("no log given") };
-    let first = &args.logs[0];
-    let c = calibrate(&model, &ne, args.spread).with_context(|| format!("calibrating to {}", first.display()))?;
-    let out = args.out.unwrap_or_else(|| first.with_extension("calibrated.urdf"));
-    dynforge_proto::run_dir::write_atomic(&out, urdf::to_string(&c.model, &urdf::BaseLink::default()).as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
-    if args.json {
-        let parameters: serde_json::Map<String, serde_json::Value> = LABELS
-            .iter()
-            .enumerate()
-            .map(|(k, l)| {
-                let v = serde_json::json!({"value": c.labels[k], "urdf": c.before[k], "unit": l.kind.unit()});
-                (l.name.to_string(), v)
-            })
-            .collect();
-        let summary = serde_json::json!({
-            "logs": args.logs, "torque_rows": ne.rows(), "identifiable": c.rank, "parameters": parameters,
-            "torque_nrmse": {"urdf": c.nrmse_before, "least_squares": c.nrmse_least_squares, "calibrated": c.nrmse_after},
-            "projections": c.projections, "urdf": out,
-        });
-        println!("{}", serde_json::to_string_pretty(&summary)?);
-    } else {
-        print!("{} log(s), {} torque rows, {c}", args.logs.len(), ne.rows());
-        println!("calibrated URDF: {}", out.display());
+    let model = args.urdf.as_ref().map(urdf::load).transpose()?;
+    let c = calibrate_files(&args.logs, model, args.spread)?;
+    let out = args.out.unwrap_or_else(|| args.logs[0].with_extension("calibrated.urdf"));
+    let text = urdf::to_string(&c.calibration.model, &urdf::BaseLink::default());
+    write_atomic(&out, text.as_bytes()).with_context(|| format!("writing {}", out.display()))?;
+    match args.json {
+        true => println!("{}", serde_json::to_string_pretty(&c.json(&out))?),
+        false => println!("{c}calibrated URDF: {}", out.display()),
     }
     Ok(())
 }

@@ -25,23 +25,12 @@ pub struct SimulateArgs {
     #[arg(long, short)]
     out: PathBuf,
     /// Simulation engine.
-    #[arg(long, value_enum, default_value_t = Engine::Native)]
-    engine: Engine,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-pub enum Engine {
-    /// Featherstone ABA + RK4 with stick/slip friction.
-    Native,
-    /// rapier3d-f64 multibody, semi-implicit Euler substeps.
-    Rapier,
+    #[arg(long, value_enum, default_value_t = EngineKind::Native)]
+    engine: EngineKind,
 }
 
 pub fn run(args: SimulateArgs) -> Result<()> {
-    let engine = match args.engine {
-        Engine::Native => EngineKind::Native,
-        Engine::Rapier => EngineKind::Rapier,
-    };
+    let engine = args.engine;
     let sim = SimConfig { engine, ..SimConfig::default() };
     if sim.trajectory.waypoints <= args.trajectory as usize {
         anyhow::bail!(

@@ -3,39 +3,22 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_trainer::model::Preset;
 use dynforge_trainer::training::session::{ModelKind, Recipe, Session};
 
 use crate::progress::{Bars, STOP, catch_interrupts};
 
-#[derive(Clone, Copy, ValueEnum)]
-pub enum ModelArg {
-    /// Physics as input: what each window's torques identify (posterior of the generator's parameter prior),
-    /// mapped to the labels by a network trained on generated robots.
-    Physics,
-    /// The paper's transformer over downsampled windows of q, qd, tau and Jacobian features.
-    Transformer,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum PresetArg {
-    /// The paper's best: 4 layers, 32 heads, 128 dims, one token per time step.
-    Paper,
-    /// 4 layers, 4 heads, 128 dims, 4 time steps per token: several times cheaper on CPU.
-    Fast,
-}
-
 /// What defines a training run besides its data and output directory; unset values take the estimator's defaults.
 #[derive(Args, Clone)]
 pub struct RecipeArgs {
     /// Estimator.
     #[arg(long, value_enum, default_value = "physics")]
-    pub model: ModelArg,
+    pub model: ModelKind,
     /// Transformer architecture preset [default: paper; pipeline: fast].
     #[arg(long, value_enum)]
-    pub preset: Option<PresetArg>,
+    pub preset: Option<Preset>,
     #[arg(long)]
     pub layers: Option<usize>,
     /// Transformer: attention heads.
@@ -88,21 +71,13 @@ pub struct RecipeArgs {
 
 impl RecipeArgs {
     pub fn model_is_transformer(&self) -> bool {
-        matches!(self.model, ModelArg::Transformer)
+        self.model == ModelKind::Transformer
     }
 
     /// The recipe, with `preset` and `epochs` as the command's defaults where not given.
     pub fn recipe(&self, preset: Preset, epochs: Option<usize>) -> Recipe {
-        let kind = match self.model {
-            ModelArg::Physics => ModelKind::Physics,
-            ModelArg::Transformer => ModelKind::Transformer,
-        };
-        let mut r = Recipe::defaults(kind);
-        r.model.preset = match self.preset {
-            Some(PresetArg::Paper) => Preset::Paper,
-            Some(PresetArg::Fast) => Preset::Fast,
-            None => preset,
-        };
+        let mut r = Recipe::defaults(self.model);
+        r.model.preset = self.preset.unwrap_or(preset);
         (r.model.layers, r.model.heads, r.model.dim) = (self.layers, self.heads, self.dim);
         (r.model.patch, r.model.dropout) = (self.patch, self.dropout);
         r.window = WindowSpec { len: self.len, stride: self.stride, ssr: self.ssr };

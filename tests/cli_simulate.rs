@@ -64,4 +64,25 @@ fn dataset_stats_reports_the_shards_of_a_directory() {
     assert!(text.contains("mass_l2"), "{text}");
     let bad = dynforge(&["dataset", "stats", dir.path().to_str().unwrap(), "--window", "64:0:16"]);
     assert!(!bad.status.success() && String::from_utf8_lossy(&bad.stderr).contains("LEN:STRIDE:SSR"));
+
+    // One shard by its file name is a dataset of one trajectory.
+    let shard = std::fs::read_dir(dir.path()).unwrap().next().unwrap().unwrap().path();
+    let out = dynforge(&["dataset", "stats", shard.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success() && text.contains("1 robots, 1 trajectories"), "{text}");
+}
+
+#[test]
+fn dataset_stats_refuses_a_directory_without_readable_shards_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let stats = |d: &std::path::Path| dynforge(&["dataset", "stats", d.to_str().unwrap()]);
+    let o = stats(dir.path());
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.code() == Some(1) && err.contains("holds no .mcap file"), "{err}");
+    assert!(err.contains(dir.path().to_str().unwrap()), "{err}");
+    std::fs::write(dir.path().join("a.mcap"), b"junk").unwrap();
+    let o = stats(dir.path());
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.code() == Some(1) && err.contains("none of its 1 .mcap files is readable"), "{err}");
+    assert!(err.contains("a.mcap"), "{err}");
 }

@@ -212,6 +212,13 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
     assert!(!o.status.success() && stderr(&o).contains("--robots 0"), "{}", stderr(&o));
     let o = dynforge(&generate_args(dir.path(), "2", "4", &["--partition", "3/2"]));
     assert!(!o.status.success() && stderr(&o).contains("partition '3/2'"), "{}", stderr(&o));
+    // A robot's tour has 16 waypoints, so 16 trajectories; a timeout must be a finite number of seconds.
+    let o = dynforge(&generate_args(dir.path(), "1", "17", &[]));
+    assert!(!o.status.success() && stderr(&o).contains("--trajectories 17 is more than"), "{}", stderr(&o));
+    for t in ["inf", "0", "-1", "NaN", "1e300"] {
+        let o = dynforge(&generate_args(dir.path(), "1", "1", &[&format!("--job-timeout={t}")]));
+        assert!(o.status.code() == Some(1) && stderr(&o).contains("--job-timeout"), "{t}: {}", stderr(&o));
+    }
 
     // A finished run whose ledger gets a corrupted line: generate refuses and changes nothing.
     assert!(dynforge(&generate_args(dir.path(), "1", "2", &["--workers", "1"])).status.success());

@@ -1,6 +1,9 @@
 //! Calibrating a robot description to its recordings by physics alone, without a trained network.
 
+use std::path::{Path, PathBuf};
+
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_recording::{ReadError, read};
 use dynforge_robot::Model;
 use dynforge_robot::parameters::{dynamic_parameters, labels, with_labels};
 
@@ -56,6 +59,78 @@ pub fn calibrate(model: &Model, ne: &NormalEquations, spread: f64) -> Result<Cal
         model: calibrated,
         projections,
     })
+}
+
+/// Why log files could not be calibrated to.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrateFilesError {
+    #[error("no log given")]
+    NoLogs,
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error("{file}: {source}")]
+    Identify { file: String, source: IdentifyError },
+}
+
+/// A description calibrated to log files (shards or ROS 2 bags) of one robot.
+pub struct FileCalibration {
+    pub logs: Vec<PathBuf>,
+    /// Torque rows (moving joint samples) the logs gave.
+    pub rows: usize,
+    pub calibration: Calibration,
+}
+
+/// Calibrates `model` (default: the first log's `/robot_description`) to the logs, each read by joint name; see
+/// [`calibrate`].
+pub fn calibrate_files(
+    logs: &[PathBuf],
+    mut model: Option<Model>,
+    spread: f64,
+) -> Result<FileCalibration, CalibrateFilesError> {
+    let mut ne: Option<NormalEquations> = None;
+    let fail = |file: &Path| {
+        let file = file.display().to_string();
+        move |source| CalibrateFilesError::Identify { file, source }
+    };
+    for log in logs {
+        let p = read(log, model.as_ref())?;
+        let this = NormalEquations::of(&p.model, &p.trajectory).map_err(fail(log))?;
+        match &mut ne {
+            Some(sum) => sum.merge(&this),
+            None => ne = Some(this),
+        }
+        model.get_or_insert(p.model);
+    }
+    let (Some(model), Some(ne)) = (model, ne) else { return Err(CalibrateFilesError::NoLogs) };
+    let calibration = calibrate(&model, &ne, spread).map_err(fail(&logs[0]))?;
+    Ok(FileCalibration { logs: logs.to_vec(), rows: ne.rows(), calibration })
+}
+
+impl FileCalibration {
+    /// The calibration as JSON, with the URDF it was written to.
+    pub fn json(&self, urdf: &Path) -> serde_json::Value {
+        let c = &self.calibration;
+        let parameters: serde_json::Map<String, serde_json::Value> = LABELS
+            .iter()
+            .enumerate()
+            .map(|(k, l)| {
+                let v = serde_json::json!({"value": c.labels[k], "urdf": c.before[k], "unit": l.kind.unit()});
+                (l.name.to_string(), v)
+            })
+            .collect();
+        serde_json::json!({
+            "logs": self.logs, "torque_rows": self.rows, "identifiable": c.rank, "parameters": parameters,
+            "torque_nrmse": {"urdf": c.nrmse_before, "least_squares": c.nrmse_least_squares, "calibrated": c.nrmse_after},
+            "projections": c.projections, "urdf": urdf,
+        })
+    }
+}
+
+/// `N log(s), R torque rows, ` and the calibration.
+impl std::fmt::Display for FileCalibration {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} log(s), {} torque rows, {}", self.logs.len(), self.rows, self.calibration)
+    }
 }
 
 /// `N identifiable parameter combinations`, the labels calibrated beside the description's, the torque NRMSE of

@@ -23,7 +23,7 @@ mod refine;
 mod samples;
 mod solve;
 
-pub use calibrate::{Calibration, calibrate};
+pub use calibrate::{CalibrateFilesError, Calibration, FileCalibration, calibrate, calibrate_files};
 pub use labels::{label_parameters, parameter_labels};
 pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};

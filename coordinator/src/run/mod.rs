@@ -48,8 +48,9 @@ pub struct GenerateConfig {
 pub enum GenerateError {
     #[error("{dir}: cannot use as the output directory: {source}")]
     Dir { dir: String, source: std::io::Error },
-    #[error("nothing to do: {0}")]
-    Empty(String),
+    /// Settings no run can have (nothing to do, more trajectories than a tour).
+    #[error("{0}")]
+    Settings(String),
     #[error(transparent)]
     Manifest(#[from] ManifestError),
     #[error(transparent)]
@@ -95,9 +96,17 @@ struct Run<'a> {
 /// Runs (or resumes) a generation. Returns the final progress.
 pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
     if cfg.robots == 0 || cfg.trajectories == 0 || cfg.workers == 0 {
-        return Err(GenerateError::Empty(format!(
+        return Err(GenerateError::Settings(format!(
             "--robots {}, --trajectories {} and --workers {} must all be at least 1",
             cfg.robots, cfg.trajectories, cfg.workers
+        )));
+    }
+    // Trajectory t is the move from waypoint t to t + 1 of a closed tour: there are as many as waypoints.
+    let tour = cfg.sim.trajectory.waypoints;
+    if cfg.trajectories as usize > tour {
+        return Err(GenerateError::Settings(format!(
+            "--trajectories {} is more than a robot has: its tour has {tour} waypoints, so {tour} trajectories",
+            cfg.trajectories
         )));
     }
     let dir_err = |source| GenerateError::Dir { dir: cfg.dir.display().to_string(), source };

@@ -88,10 +88,13 @@ impl Stats {
 
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
 pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, ReadError> {
-    let paths = list_shards(dir).map_err(|e| ReadError::Content {
-        file: dynforge_recording::dataset::shard_dir(dir).display().to_string(),
-        problem: e.to_string(),
-    })?;
+    let paths = match dir.is_file() {
+        true => vec![dir.to_path_buf()],
+        false => list_shards(dir).map_err(|e| ReadError::Content {
+            file: dynforge_recording::dataset::shard_dir(dir).display().to_string(),
+            problem: e.to_string(),
+        })?,
+    };
     let mut s = Stats { label_ranges: vec![(f64::INFINITY, f64::NEG_INFINITY); NUM_LABELS], ..Stats::default() };
     let mut robots = std::collections::BTreeSet::new();
     for path in paths {
@@ -118,6 +121,13 @@ pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, ReadError> {
                 *range = (range.0.min(v), range.1.max(v));
             }
         }
+    }
+    if s.shards == 0 {
+        let why = match s.skipped.first() {
+            None => "it holds no .mcap file".to_string(),
+            Some(first) => format!("none of its {} .mcap files is readable ({first})", s.skipped.len()),
+        };
+        return Err(ReadError::Content { file: dir.display().to_string(), problem: format!("no shards: {why}") });
     }
     s.robots = robots.len();
     Ok(s)

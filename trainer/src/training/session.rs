@@ -21,11 +21,13 @@ use crate::model::{NetworkConfig, PhysicsConfig, Preset, TransformerConfig};
 
 /// Which estimator a run trains.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum ModelKind {
-    /// The paper's transformer over downsampled windows.
-    Transformer,
-    /// The map from what the torques identify (the generator prior's posterior) to the labels.
+    /// Physics as input: what each window's torques identify (posterior of the generator's parameter prior),
+    /// mapped to the labels by a network trained on generated robots.
     Physics,
+    /// The paper's transformer over downsampled windows of q, qd, tau and Jacobian features.
+    Transformer,
 }
 
 /// The architecture: the estimator, and the parts of its default size a run overrides.

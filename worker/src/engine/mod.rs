@@ -11,6 +11,7 @@ use crate::trajectory::Config6;
 /// Which engine runs a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum EngineKind {
     /// Featherstone ABA + RK4 with exact stick/slip Coulomb friction (this crate).
     Native,
