@@ -61,6 +61,10 @@ impl Drop for Bars {
 }
 
 impl TrainObserver for Bars {
+    fn message(&mut self, text: &str) {
+        self.line(text);
+    }
+
     fn step(&mut self, epoch: usize, batch: usize, batches: usize, loss: f64) {
         if batch == 1 || self.bar.length() != Some(batches as u64) {
             self.bar.set_length(batches as u64);
@@ -100,9 +104,5 @@ impl SessionObserver for Bars {
         self.bar.set_message(what.to_string());
         self.bar.set_length(total as u64);
         self.bar.set_position(done as u64);
-    }
-
-    fn message(&mut self, text: &str) {
-        self.line(text);
     }
 }

@@ -168,6 +168,40 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     assert_eq!(a.history.len(), 3);
 }
 
+/// Collects the messages of a run.
+struct Messages(Vec<String>);
+
+impl TrainObserver for Messages {
+    fn message(&mut self, text: &str) {
+        self.0.push(text.to_string());
+    }
+}
+
+#[test]
+fn a_resume_names_its_epoch_and_every_changed_setting_and_refuses_those_that_decide_the_batches() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let cfg = TrainConfig { epochs: 1, batch: 4, lr: 2e-3, ..TrainConfig::default() };
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = corpus(8, 3);
+    let ck = checkpoint(&c, small_model());
+    let never = AtomicBool::new(false);
+    train(&mut c, None, ck.clone(), &cfg, dir.path(), false, &mut (), &never).unwrap();
+    let longer = TrainConfig { epochs: 2, lr: 1e-3, ..cfg.clone() };
+    let mut seen = Messages(Vec::new());
+    let r = train(&mut c, None, ck.clone(), &longer, dir.path(), true, &mut seen, &never).unwrap();
+    assert_eq!(r.history.len(), 2);
+    let text = seen.0.join("\n");
+    assert!(
+        text.contains("at epoch 1") && text.contains("epochs 1 -> 2") && text.contains("lr 0.002 -> 0.001"),
+        "{text}"
+    );
+    assert!(!text.contains("patience"), "unchanged settings are not listed: {text}");
+    for other in [TrainConfig { micro_batches: 2, ..longer.clone() }, TrainConfig { batch: 3, ..longer.clone() }] {
+        let e = train(&mut c, None, ck.clone(), &other, dir.path(), true, &mut (), &never).map(|_| ()).unwrap_err();
+        assert!(e.to_string().contains("micro-batches; resume it with the same"), "{e}");
+    }
+}
+
 /// Counts the batches of each epoch.
 struct Batches(Vec<usize>);
 

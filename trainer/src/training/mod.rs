@@ -130,6 +130,8 @@ pub struct TrainSummary {
 pub trait TrainObserver {
     fn step(&mut self, _epoch: usize, _batch: usize, _batches: usize, _loss: f64) {}
     fn epoch(&mut self, _m: &EpochMetrics, _best: bool) {}
+    /// Something the user should know (a resumed run and what changed in it, skipped shards, waiting).
+    fn message(&mut self, _text: &str) {}
 }
 
 impl TrainObserver for () {}
@@ -326,6 +328,24 @@ fn process_cpu_seconds() -> f64 {
     secs(usage.ru_utime) + secs(usage.ru_stime)
 }
 
+/// The settings of `now` that differ from `was` (those a resumed run may change), as `; changed: lr 0.001 -> 0.0005`.
+fn changes(was: &TrainConfig, now: &TrainConfig) -> String {
+    let pairs = [
+        ("epochs", was.epochs as f64, now.epochs as f64),
+        ("lr", was.lr, now.lr),
+        ("warmup", was.warmup, now.warmup),
+        ("weight decay", was.weight_decay, now.weight_decay),
+        ("clip", was.clip, now.clip),
+        ("patience", was.patience as f64, now.patience as f64),
+    ];
+    let changed: Vec<String> =
+        pairs.iter().filter(|(_, a, b)| a != b).map(|(name, a, b)| format!("{name} {a} -> {b}")).collect();
+    match changed.is_empty() {
+        true => String::new(),
+        false => format!("; changed: {} (the schedule follows the new values from here)", changed.join(", ")),
+    }
+}
+
 /// Whether `dir` holds a run that `train(.., resume = true)` can continue.
 pub fn resumable(dir: &Path) -> bool {
     train_dir(dir).join("state.json").is_file()
@@ -374,14 +394,18 @@ pub fn train<E: Examples>(
     };
     if resume {
         let (o, s) = load_state(dir, &mut model, optim)?;
-        if s.config.seed != cfg.seed || s.config.batch != cfg.batch {
+        let (was, now) = (&s.config, cfg);
+        if (was.seed, was.batch, was.micro_batches) != (now.seed, now.batch, now.micro_batches) {
             return Err(TrainError::Setup(format!(
-                "{}: the run was started with seed {} and batch {}; resume it with the same",
+                "{}: the run was started with seed {}, batch {} and {} micro-batches; resume it with the same \
+                 (they decide the batches and the rounding of the gradients)",
                 dir.display(),
-                s.config.seed,
-                s.config.batch
+                was.seed,
+                was.batch,
+                was.micro_batches
             )));
         }
+        observer.message(&format!("resuming {} at epoch {}{}", dir.display(), s.epoch, changes(was, now)));
         optim = o;
         state = TrainState { config: cfg.clone(), ..s };
         checkpoint = Checkpoint::read(dir)?;

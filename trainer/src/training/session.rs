@@ -108,8 +108,6 @@ impl Recipe {
 pub trait SessionObserver: TrainObserver {
     /// `done` of `total` items of a preprocessing stage (`what`).
     fn preprocessing(&mut self, _what: &str, _done: usize, _total: usize) {}
-    /// Something the user should know (skipped shards, waiting, a fresh start instead of a resume).
-    fn message(&mut self, _text: &str) {}
 }
 
 impl SessionObserver for () {}
@@ -448,5 +446,10 @@ impl TrainObserver for Relay<'_, '_> {
     fn epoch(&mut self, m: &super::EpochMetrics, best: bool) {
         self.flush();
         self.observer.epoch(m, best);
+    }
+
+    fn message(&mut self, text: &str) {
+        self.flush();
+        self.observer.message(text);
     }
 }
