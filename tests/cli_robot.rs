@@ -55,6 +55,23 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(err.contains("gen.toml") && err.contains("tube_wall_fraction"), "{err}");
 
+    // Bounds are said in words (not the 309 digits of the largest f64); a zero joint axis is refused up front.
+    std::fs::write(&cfg, "coulomb = [[1.0, 0.5], [0, 1], [0, 1], [0, 1], [0, 1], [0, 1]]\n").unwrap();
+    let err = String::from_utf8(dynforge(&["robot", "--config", cfg.to_str().unwrap()]).stderr).unwrap();
+    assert!(err.contains("coulomb[0]") && err.contains("non-negative numbers") && err.len() < 300, "{err}");
+    let mut k = dynforge_robot::generator::GeneratorConfig::default();
+    k.kinematics.axes[3] = [0.0; 3];
+    std::fs::write(&cfg, toml::to_string(&k).unwrap()).unwrap();
+    let out = dynforge(&["robot", "--config", cfg.to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains("axes[3]") && err.contains("not a direction"), "{err}");
+
+    // An OS error is said once, after the file it concerns.
+    let out = dynforge(&["identify", dir.path().to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains(dir.path().to_str().unwrap()), "{err}");
+    assert_eq!(err.matches("Is a directory").count(), 1, "{err}");
+
     // An unwritable destination fails cleanly and leaves nothing behind.
     let out = dynforge(&["robot", "--out", dir.path().join("missing/dir/r.urdf").to_str().unwrap()]);
     assert!(!out.status.success());

@@ -102,22 +102,27 @@ impl Manifest {
         Ok(grown)
     }
 
-    /// Names of the top-level settings that differ, with both values for scalars.
+    /// The settings that differ, by their dotted names (`sim.dt`), each with both values.
     fn differences(&self, other: &Manifest) -> String {
         let a: toml::Table = toml::from_str(&self.to_toml()).expect("round trip");
         let b: toml::Table = toml::from_str(&other.to_toml()).expect("round trip");
         let mut out = Vec::new();
-        for (key, va) in &a {
-            let vb = b.get(key);
-            if vb != Some(va) {
-                match (va, vb) {
-                    (toml::Value::Table(_), _) | (_, Some(toml::Value::Table(_))) => out.push(format!("{key} differs")),
-                    (_, Some(vb)) => out.push(format!("{key}: requested {va}, directory has {vb}")),
-                    (_, None) => out.push(format!("{key} missing in the directory's manifest")),
-                }
-            }
-        }
+        table_differences("", &a, &b, &mut out);
         out.join("; ")
+    }
+}
+
+fn table_differences(prefix: &str, a: &toml::Table, b: &toml::Table, out: &mut Vec<String>) {
+    for (key, va) in a {
+        let name = format!("{prefix}{key}");
+        match (va, b.get(key)) {
+            (_, Some(vb)) if vb == va => {}
+            (toml::Value::Table(ta), Some(toml::Value::Table(tb))) => {
+                table_differences(&format!("{name}."), ta, tb, out)
+            }
+            (_, Some(vb)) => out.push(format!("{name}: requested {va}, directory has {vb}")),
+            (_, None) => out.push(format!("{name} missing in the directory's manifest")),
+        }
     }
 }
 
@@ -146,7 +151,7 @@ mod tests {
         let mut other = manifest(12);
         other.sim.dt = 2e-3;
         let e = other.create_or_check(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("sim differs"), "{e}");
+        assert!(e.contains("sim.dt: requested 0.002, directory has 0.001"), "{e}");
         std::fs::write(dir.path().join(FILE), "seed = 'x'").unwrap();
         let e = manifest(12).create_or_check(dir.path()).unwrap_err().to_string();
         assert!(e.contains("manifest.toml: not a dynforge run manifest"), "{e}");

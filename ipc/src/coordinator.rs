@@ -71,7 +71,7 @@ impl Coordinator {
             }
         });
         if let Some(pid) = other {
-            return Err(IpcError::CoordinatorAlreadyRunning { pid });
+            return Err(IpcError::CoordinatorAlreadyRunning { pid: Some(pid) });
         }
         run::cleanup_stale(run)?;
         // From here on SIGINT/SIGTERM are recorded (and returned by `wait`) instead of killing the process.
@@ -90,7 +90,7 @@ impl Coordinator {
             }
         });
         if others > 0 {
-            return Err(IpcError::CoordinatorAlreadyRunning { pid: -1 });
+            return Err(IpcError::CoordinatorAlreadyRunning { pid: None });
         }
         // Workers of a crashed predecessor exit by themselves once they notice; ask them now.
         for k in old_workers {

@@ -13,8 +13,12 @@ pub enum IpcError {
     WorkerNotReady(usize),
     #[error("worker slot {slot} already runs job {job_id} (one job in flight per worker)")]
     Busy { slot: usize, job_id: u64 },
-    #[error("another coordinator (pid {pid}) is running for this run id")]
-    CoordinatorAlreadyRunning { pid: i32 },
+    /// `pid` is unknown when two coordinators started at the same moment (both give up).
+    #[error(
+        "another coordinator {} is running for this run directory",
+        .pid.map_or("(started at the same moment)".to_string(), |p| format!("(pid {p})"))
+    )]
+    CoordinatorAlreadyRunning { pid: Option<i32> },
     #[error("no coordinator is running for this run id")]
     CoordinatorNotRunning,
     #[error("worker slot {slot} is still held by another worker process after {waited_ms} ms")]

@@ -177,7 +177,15 @@ fn two_runs_on_one_host_do_not_interfere() {
     let (mut wa, mut wb) = (Workers::default(), Workers::default());
     let mut ca = Coordinator::new(&ra.id, 1).unwrap();
     let mut cb = Coordinator::new(&rb.id, 1).unwrap();
-    assert!(matches!(Coordinator::new(&ra.id, 1), Err(IpcError::CoordinatorAlreadyRunning { .. })));
+    // The second coordinator is refused, naming the first one's process.
+    match Coordinator::new(&ra.id, 1) {
+        Err(e @ IpcError::CoordinatorAlreadyRunning { pid: Some(pid) }) => {
+            assert_eq!(pid, std::process::id() as i32);
+            assert!(e.to_string().contains(&format!("(pid {pid})")), "{e}");
+        }
+        Err(e) => panic!("refused for another reason: {e}"),
+        Ok(_) => panic!("a second coordinator was accepted"),
+    }
     start(&mut ca, &mut wa, &ra.id, 1);
     start(&mut cb, &mut wb, &rb.id, 1);
     for i in 0..20 {

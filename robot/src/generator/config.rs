@@ -121,7 +121,15 @@ impl GeneratorConfig {
         let bad = |m: String| Err(ConfigError(m));
         let ordered = |name: &str, r: &Range, min: f64, max: f64| -> Result<(), ConfigError> {
             if !(r[0] <= r[1] && r[0] >= min && r[1] <= max && r[0].is_finite() && r[1].is_finite()) {
-                return Err(ConfigError(format!("{name} = {r:?} must be an ordered range within [{min}, {max}]")));
+                // Bounds that only exclude what no range may hold are said in words, not as 309-digit numbers.
+                let within = match (min, max) {
+                    (f64::MIN, f64::MAX) => "of finite numbers".to_string(),
+                    (f64::MIN_POSITIVE, f64::MAX) => "of positive numbers".to_string(),
+                    (0.0, f64::MAX) => "of non-negative numbers".to_string(),
+                    (f64::MIN_POSITIVE, hi) => format!("within (0, {hi}]"),
+                    (lo, hi) => format!("within [{lo}, {hi}]"),
+                };
+                return Err(ConfigError(format!("{name} = {r:?} must be an ordered range {within}")));
             }
             Ok(())
         };
@@ -143,6 +151,12 @@ impl GeneratorConfig {
                 return bad(format!(
                     "kinematics of link/joint {j}: lengths, diameters, effort and velocity must be positive"
                 ));
+            }
+            // A joint turns about a direction: a zero (or non-finite) axis has none, and every job would fail.
+            let axis = k.axes[j];
+            let norm = axis.iter().map(|a| a * a).sum::<f64>().sqrt();
+            if !(norm > 1e-9 && norm.is_finite()) {
+                return bad(format!("kinematics.axes[{j}] = {axis:?} is not a direction (zero or not finite)"));
             }
         }
         Ok(())
