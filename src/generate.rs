@@ -174,6 +174,14 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
         progress.total, progress, progress.resumed,
     );
+    if progress.failed > 0 {
+        bail!(
+            "{} job(s) failed (reasons in {} and the worker logs in {}); rerun the same command to retry them",
+            progress.failed,
+            args.out.join(dynforge_proto::run_dir::LEDGER).display(),
+            args.out.join(dynforge_proto::run_dir::LOGS).display()
+        );
+    }
     Ok(())
 }
 
@@ -198,6 +206,9 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
         bail!("{} missing, {} extra, {} corrupt", report.missing.len(), report.extra.len(), report.corrupt.len());
     }
     println!("ok: every recorded shard is present and intact");
+    if report.failed > 0 {
+        bail!("incomplete: {} job(s) failed; rerun the same `generate` command to retry them", report.failed);
+    }
     Ok(())
 }
 

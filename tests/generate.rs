@@ -264,13 +264,15 @@ fn a_grown_dataset_equals_one_generated_at_its_final_size() {
 fn a_hung_job_is_retried_then_recorded_as_failed_with_the_reason() {
     // Workers stall 30 s before each job (fault injection), far past the 0.3 s deadline: every attempt counts as a
     // hung worker, which is killed and replaced; after the third attempt the job is recorded as failed, and the run
+    // finishes with a non-zero exit that says so. A resume (here without the fault) runs the failed job again.
     // still finishes.
     let dir = tempfile::tempdir().unwrap();
     let out = dynforge_with_env(
         &generate_args(dir.path(), "1", "1", &["--workers", "1", "--job-timeout", "0.3"]),
         &[("DYNFORGE_FAULT_WORKER_STALL", "30")],
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.code() == Some(1) && err.contains("1 job(s) failed") && err.contains("rerun"), "{err}");
     let entries = ledger_entries(dir.path());
     assert_eq!(entries.len(), 1);
     match &entries[0].status {
@@ -280,4 +282,16 @@ fn a_hung_job_is_retried_then_recorded_as_failed_with_the_reason() {
         other => panic!("expected a failure, got {other:?}"),
     }
     assert!(shard_hashes(dir.path()).is_empty(), "no shard for a failed job");
+    let verify = dynforge(&["verify", dir.path().to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&verify.stderr).to_string();
+    assert!(!verify.status.success() && err.contains("incomplete: 1 job(s) failed"), "{err}");
+
+    let out = dynforge(&generate_args(dir.path(), "1", "1", &["--workers", "1"]));
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success() && err.contains("retrying 1 job(s) that failed"), "{err}");
+    let entries = ledger_entries(dir.path());
+    assert!(entries.len() == 2 && matches!(entries[1].status, ledger::Status::Done { .. }), "{entries:?}");
+    assert_eq!(shard_hashes(dir.path()).len(), 1, "the retried job wrote its shard");
+    let verify = dynforge(&["verify", dir.path().to_str().unwrap()]);
+    assert!(verify.status.success(), "{}", String::from_utf8_lossy(&verify.stdout));
 }

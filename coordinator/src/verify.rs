@@ -111,7 +111,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
             .map(|j| (plan::job_id(&j, manifest.trajectories), j))
             .collect();
     report.planned = planned.len();
-    // Last entry wins (a job has one entry unless the ledger was edited by hand).
+    // Last entry wins: a failed job gets a second entry when a resume runs it again.
     let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
     let mut expected_files = BTreeSet::new();
     let total = latest.len();

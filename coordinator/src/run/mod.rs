@@ -19,7 +19,7 @@ use dynforge_robot::generator::GeneratorConfig;
 use dynforge_worker::job::Job;
 use dynforge_worker::simulate::SimConfig;
 
-use crate::ledger::{Entry, Ledger, LedgerError};
+use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::manifest::{Manifest, ManifestError};
 use crate::plan::{self, Partition};
 use processes::Processes;
@@ -123,9 +123,19 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
         observer.message(&format!("removed {removed} partial shard file(s) left by an interrupted run"));
     }
 
-    let finished: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    // A job's latest entry counts. Done and discarded are final (a discard is a property of the robot and its
+    // trajectory); a failure (a killed or hung worker, a full disk, an unwritable directory) says nothing about the
+    // job, so a resume runs it again.
+    let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let finished: HashMap<u64, &Entry> =
+        latest.into_iter().filter(|(_, e)| !matches!(e.status, Status::Failed { .. })).collect();
+    let retried = Progress::from_ledger(0, &entries).failed;
+    if retried > 0 {
+        observer.message(&format!("retrying {retried} job(s) that failed in an earlier run"));
+    }
+    let kept: Vec<Entry> = finished.values().map(|e| (*e).clone()).collect();
     let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { slots: vec![None; cfg.workers], ..Progress::from_ledger(all.len() as u64, &entries) };
+    let mut progress = Progress { slots: vec![None; cfg.workers], ..Progress::from_ledger(all.len() as u64, &kept) };
     progress.resumed = progress.finished();
     let pending: VecDeque<Job> =
         all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
