@@ -10,7 +10,8 @@ use iceoryx2::prelude::ZeroCopySend;
 pub const FIXED_STR_CAPACITY: usize = dynforge_proto::job::MESSAGE_CAPACITY;
 
 /// A short UTF-8 string of at most [`FIXED_STR_CAPACITY`] bytes stored inline (zero-padded), for reason codes and
-/// error messages. Longer input is truncated at a character boundary.
+/// error messages. Longer input keeps its first third and its end, joined by ` … ` at character boundaries: an
+/// error names what failed first and its cause (`No space left on device (os error 28)`) last.
 #[derive(Clone, Copy, PartialEq, Eq, ZeroCopySend)]
 #[repr(C)]
 #[type_name("dynforge::FixedStr")]
@@ -36,12 +37,23 @@ impl Default for FixedStr {
 
 impl From<&str> for FixedStr {
     fn from(s: &str) -> Self {
-        let mut end = s.len().min(FIXED_STR_CAPACITY);
-        while !s.is_char_boundary(end) {
-            end -= 1;
-        }
+        const GAP: &str = " … ";
         let mut bytes = [0; FIXED_STR_CAPACITY];
-        bytes[..end].copy_from_slice(&s.as_bytes()[..end]);
+        if s.len() <= FIXED_STR_CAPACITY {
+            bytes[..s.len()].copy_from_slice(s.as_bytes());
+            return Self(bytes);
+        }
+        let budget = FIXED_STR_CAPACITY - GAP.len();
+        let mut head = budget / 3;
+        while !s.is_char_boundary(head) {
+            head -= 1;
+        }
+        let mut tail = s.len() - (budget - head);
+        while !s.is_char_boundary(tail) {
+            tail += 1;
+        }
+        let text = [&s[..head], GAP, &s[tail..]].concat();
+        bytes[..text.len()].copy_from_slice(text.as_bytes());
         Self(bytes)
     }
 }
@@ -150,20 +162,36 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fixed_str_round_trips_and_truncates_at_char_boundary() {
+    fn fixed_str_round_trips_and_keeps_both_ends_of_long_text_at_char_boundaries() {
         assert_eq!(FixedStr::from("timeout").as_str(), "timeout");
         assert_eq!(FixedStr::from("").as_str(), "");
-        let long = "é".repeat(100); // 200 bytes, 2 per char
-        let s = FixedStr::from(long.as_str());
-        assert_eq!(s.as_str().len(), 128);
-        assert_eq!(s.as_str(), "é".repeat(64));
-        let odd = format!("a{}", "é".repeat(100)); // boundary falls inside a char at 128
-        assert_eq!(FixedStr::from(odd.as_str()).as_str().len(), 127);
+        let whole = "é".repeat(FIXED_STR_CAPACITY / 2);
+        assert_eq!(FixedStr::from(whole.as_str()).as_str(), whole);
+        // A full disk deep in a long path: the file and the OS error both survive.
+        let path = format!("/tmp/{}/shards/r000001-t03-native.mcap.tmp", "d".repeat(700));
+        let long = format!("writing {path}: finishing the compression stream: No space left on device (os error 28)");
+        let cut = FixedStr::from(long.as_str());
+        let text = cut.as_str();
+        assert!(text.len() <= FIXED_STR_CAPACITY && text.len() > FIXED_STR_CAPACITY - 4, "{}", text.len());
+        assert!(text.starts_with("writing /tmp/ddd") && text.contains(" … "), "{text}");
+        assert!(
+            text.ends_with(
+                "r000001-t03-native.mcap.tmp: finishing the compression stream: No space left on device (os error 28)"
+            ),
+            "{text}"
+        );
+        // Two-byte characters on every side of both cuts: still valid UTF-8, nothing but whole characters.
+        for pad in 0..3 {
+            let odd = format!("{}{}", "a".repeat(pad), "é".repeat(FIXED_STR_CAPACITY));
+            let t = FixedStr::from(odd.as_str()).as_str().to_string();
+            assert!(t.len() <= FIXED_STR_CAPACITY && t.ends_with('é') && t.contains(" … "), "{t}");
+            assert_eq!(t.chars().filter(|&c| c != 'é' && c != 'a').collect::<String>(), " … ");
+        }
     }
 
     #[test]
     fn reports_cross_the_wire_whole_or_cut_at_the_capacity() {
-        let long = "x".repeat(300);
+        let long = format!("{}{}", "x".repeat(300), "y".repeat(300));
         for r in [
             JobReport::Progress { job_id: 3, permille: 10 },
             JobReport::Done { job_id: 4, samples: 6500, content_hash: u64::MAX },
@@ -172,7 +200,9 @@ mod tests {
         ] {
             let back = JobReport::from(&WireReport::from(&r));
             match (&r, &back) {
-                (JobReport::Failed { .. }, JobReport::Failed { message, .. }) => assert_eq!(message, &long[..128]),
+                (JobReport::Failed { .. }, JobReport::Failed { message, .. }) => {
+                    assert!(message.starts_with("xxx") && message.ends_with("yyy") && message.contains(" … "))
+                }
                 _ => assert_eq!(back, r),
             }
         }

@@ -27,8 +27,9 @@ pub enum JobReport {
     Failed { job_id: u64, message: String },
 }
 
-/// Bytes of a reason or message that cross the process boundary; longer text is cut at a character boundary.
-pub const MESSAGE_CAPACITY: usize = 128;
+/// Bytes of a reason or message that cross the process boundary: room for a path and an OS error. Longer text
+/// loses its middle (the ipc crate's `FixedStr`), keeping what failed on which file and the cause at the end.
+pub const MESSAGE_CAPACITY: usize = 512;
 
 impl JobReport {
     /// The job this report belongs to.
