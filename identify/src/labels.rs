@@ -2,7 +2,7 @@
 
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_robot::Model;
-use dynforge_robot::parameters::dynamic_parameters;
+use dynforge_robot::parameters::{dynamic_parameters, link_label};
 use dynforge_robot::spatial::Inertia;
 
 /// The full parameter vector `pi` of `template` with the 38 labels `y` put in, everything else (COM x and y,
@@ -48,14 +48,7 @@ pub fn parameter_labels(pi: &[f64]) -> [f64; NUM_LABELS] {
             LabelKind::Viscous => pi[friction + nf * l.index + 1],
             kind => {
                 let p: [f64; 10] = pi[ni * (l.index - 1)..ni * l.index].try_into().expect("10 parameters per link");
-                let inertia = Inertia::from_params(&p);
-                match kind {
-                    LabelKind::Mass => inertia.mass,
-                    LabelKind::Com => inertia.com().z,
-                    LabelKind::Ixx => inertia.i_com()[(0, 0)],
-                    LabelKind::Iyy => inertia.i_com()[(1, 1)],
-                    _ => inertia.i_com()[(2, 2)],
-                }
+                link_label(kind, &Inertia::from_params(&p))
             }
         }
     })

@@ -22,19 +22,23 @@ pub fn labels(model: &Model) -> Result<[f64; NUM_LABELS], ModelError> {
         *o = match l.kind {
             LabelKind::Coulomb => model.joints()[l.index].friction.coulomb,
             LabelKind::Viscous => model.joints()[l.index].friction.viscous,
-            kind => {
-                let inertia = model.inertia(l.index - 1);
-                match kind {
-                    LabelKind::Mass => inertia.mass,
-                    LabelKind::Com => inertia.com().z,
-                    LabelKind::Ixx => inertia.i_com()[(0, 0)],
-                    LabelKind::Iyy => inertia.i_com()[(1, 1)],
-                    _ => inertia.i_com()[(2, 2)],
-                }
-            }
+            kind => link_label(kind, model.inertia(l.index - 1)),
         };
     }
     Ok(out)
+}
+
+/// A link label of kind `kind` (mass, COM along the link axis, or a moment about the COM) of the link `inertia`;
+/// NaN for the friction kinds, which belong to joints.
+pub fn link_label(kind: LabelKind, inertia: &Inertia) -> f64 {
+    match kind {
+        LabelKind::Mass => inertia.mass,
+        LabelKind::Com => inertia.com().z,
+        LabelKind::Ixx => inertia.i_com()[(0, 0)],
+        LabelKind::Iyy => inertia.i_com()[(1, 1)],
+        LabelKind::Izz => inertia.i_com()[(2, 2)],
+        LabelKind::Coulomb | LabelKind::Viscous => f64::NAN,
+    }
 }
 
 /// The full parameter vector `pi` with `tau = Y pi` (layout of [`dynforge_proto::params`]).

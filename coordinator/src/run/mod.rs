@@ -127,15 +127,17 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     // trajectory); a failure (a killed or hung worker, a full disk, an unwritable directory) says nothing about the
     // job, so a resume runs it again.
     let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
-    let finished: HashMap<u64, &Entry> =
-        latest.into_iter().filter(|(_, e)| !matches!(e.status, Status::Failed { .. })).collect();
-    let retried = Progress::from_ledger(0, &entries).failed;
+    let failed = |e: &Entry| matches!(e.status, Status::Failed { .. });
+    let retried = latest.values().filter(|e| failed(e)).count();
+    let finished: HashMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
     if retried > 0 {
         observer.message(&format!("retrying {retried} job(s) that failed in an earlier run"));
     }
-    let kept: Vec<Entry> = finished.values().map(|e| (*e).clone()).collect();
     let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { slots: vec![None; cfg.workers], ..Progress::from_ledger(all.len() as u64, &kept) };
+    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
+    for e in finished.values() {
+        progress.record(&e.status);
+    }
     progress.resumed = progress.finished();
     let pending: VecDeque<Job> =
         all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();

@@ -53,7 +53,7 @@ impl<'a> Decoder<'a> {
     }
 
     pub(crate) fn u64(&mut self) -> Option<u64> {
-        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+        self.values(1, u64::from_le_bytes)?.pop()
     }
 
     /// A count or size, which must fit this machine.
@@ -61,31 +61,22 @@ impl<'a> Decoder<'a> {
         self.u64()?.try_into().ok()
     }
 
+    /// `n` values of `N` bytes each, decoded by `from` (a `from_le_bytes`).
+    fn values<const N: usize, T>(&mut self, n: usize, from: fn([u8; N]) -> T) -> Option<Vec<T>> {
+        let bytes = self.take(n.checked_mul(N)?)?;
+        Some(bytes.chunks_exact(N).map(|c| from(c.try_into().expect("chunks of N bytes"))).collect())
+    }
+
     pub(crate) fn u64s(&mut self, n: usize) -> Option<Vec<u64>> {
-        Some(
-            self.take(n.checked_mul(8)?)?
-                .chunks_exact(8)
-                .map(|c| u64::from_le_bytes(c.try_into().expect("8")))
-                .collect(),
-        )
+        self.values(n, u64::from_le_bytes)
     }
 
     pub(crate) fn f32s(&mut self, n: usize) -> Option<Vec<f32>> {
-        Some(
-            self.take(n.checked_mul(4)?)?
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4")))
-                .collect(),
-        )
+        self.values(n, f32::from_le_bytes)
     }
 
     pub(crate) fn f64s(&mut self, n: usize) -> Option<Vec<f64>> {
-        Some(
-            self.take(n.checked_mul(8)?)?
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes(c.try_into().expect("8")))
-                .collect(),
-        )
+        self.values(n, f64::from_le_bytes)
     }
 
     /// Whether everything was read.
