@@ -26,6 +26,17 @@ pub struct StatsArgs {
     features: bool,
 }
 
+#[derive(Args)]
+pub struct InfoArgs {
+    /// An MCAP log: a dataset shard or a ROS 2 bag (file or rosbag2 directory).
+    log: PathBuf,
+}
+
+pub fn info(args: InfoArgs) -> Result<()> {
+    print!("{}", dynforge_recording::info::Info::of(&args.log)?);
+    Ok(())
+}
+
 fn parse_spec(s: &str) -> Result<WindowSpec> {
     let parts: Vec<usize> = s
         .split(':')

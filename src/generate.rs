@@ -58,6 +58,20 @@ pub struct StatusArgs {
 pub struct VerifyArgs {
     /// The generation's output directory.
     dir: PathBuf,
+    /// Record missing and corrupt shards as failed jobs (moving corrupt files to DIR/quarantine/), so that rerunning
+    /// the `generate` command makes them again.
+    #[arg(long)]
+    repair: bool,
+}
+
+#[derive(Args)]
+pub struct MergeArgs {
+    /// The new directory to write: the run as one host would have written it (shards hard-linked where possible).
+    #[arg(long)]
+    out: PathBuf,
+    /// The partition directories (`generate --partition i/n`), all n of them, each complete.
+    #[arg(required = true)]
+    parts: Vec<PathBuf>,
 }
 
 #[derive(Args)]
@@ -202,13 +216,38 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
     })?;
     bar.finish_and_clear();
     print!("{}: {report}", args.dir.display());
+    if args.repair && !(report.missing.is_empty() && report.corrupt.is_empty()) {
+        let marked = dynforge_coordinator::verify::repair(&args.dir, &report)?;
+        bail!("{marked} job(s) recorded as failed for their shards; rerun the `generate` command to make them again");
+    }
     if !report.is_ok() {
-        bail!("{} missing, {} extra, {} corrupt", report.missing.len(), report.extra.len(), report.corrupt.len());
+        let hint =
+            if report.missing.is_empty() && report.corrupt.is_empty() { "" } else { " (`--repair` redoes them)" };
+        bail!("{} missing, {} extra, {} corrupt{hint}", report.missing.len(), report.extra.len(), report.corrupt.len());
     }
     println!("ok: every recorded shard is present and intact");
     if report.failed > 0 {
         bail!("incomplete: {} job(s) failed; rerun the same `generate` command to retry them", report.failed);
     }
+    Ok(())
+}
+
+pub fn merge(args: MergeArgs) -> Result<()> {
+    let bar = if std::io::stderr().is_terminal() { ProgressBar::new(0) } else { ProgressBar::hidden() };
+    let merged = dynforge_coordinator::merge::merge(&args.parts, &args.out, |k, n| {
+        bar.set_length(n as u64);
+        bar.set_position(k as u64);
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "{}: merged {} partitions: {} shards ({} hard-linked, {} copied), {} ledger records",
+        args.out.display(),
+        merged.partitions,
+        merged.shards,
+        merged.shards - merged.copied,
+        merged.copied,
+        merged.ledger_entries
+    );
     Ok(())
 }
 

@@ -40,6 +40,10 @@ enum Command {
     Status(generate::StatusArgs),
     /// Check every shard of a dataset against its ledger and manifest.
     Verify(generate::VerifyArgs),
+    /// Merge the partition directories of one run (`generate --partition i/n`) into the single-host directory.
+    Merge(generate::MergeArgs),
+    /// What a log holds (shard or ROS 2 bag, a file or a rosbag2 directory): joint states, rate, robot, labels.
+    Info(dataset::InfoArgs),
     /// Inspect a dataset of shards.
     #[command(subcommand)]
     Dataset(dataset::DatasetCommand),
@@ -76,6 +80,8 @@ fn main() -> std::process::ExitCode {
         Command::Status(args) => generate::status(args),
         Command::Verify(args) => generate::verify(args),
         Command::Worker(args) => generate::worker(args),
+        Command::Merge(args) => generate::merge(args),
+        Command::Info(args) => dataset::info(args),
         Command::Dataset(cmd) => dataset::run(cmd),
         Command::Train(args) => train::run(args),
         Command::Evaluate(args) => evaluate::run(args),

@@ -67,10 +67,15 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     assert!(!out.status.success() && err.contains("axes[3]") && err.contains("not a direction"), "{err}");
 
     // An OS error is said once, after the file it concerns.
+    let missing = dir.path().join("missing.mcap");
+    let out = dynforge(&["identify", missing.to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains(missing.to_str().unwrap()), "{err}");
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    // A directory is read as a rosbag2 bag, and one without an MCAP file says so.
     let out = dynforge(&["identify", dir.path().to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();
-    assert!(!out.status.success() && err.contains(dir.path().to_str().unwrap()), "{err}");
-    assert_eq!(err.matches("Is a directory").count(), 1, "{err}");
+    assert!(!out.status.success() && err.contains("a directory with no .mcap file"), "{err}");
 
     // An unwritable destination fails cleanly and leaves nothing behind.
     let out = dynforge(&["robot", "--out", dir.path().join("missing/dir/r.urdf").to_str().unwrap()]);

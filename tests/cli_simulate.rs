@@ -26,6 +26,24 @@ fn simulate_writes_a_readable_shard_and_reports_what_it_did() {
     // The report's sample count is the shard's.
     assert!(text.contains(&format!("{} samples", bag.joint_states.len())), "{text}");
     assert!(bag.joint_states.len() as f64 >= 4096.0 + 1000.0, "at least one 64 x 64 ms window plus offsets");
+
+    // `info` describes it, also as a rosbag2 directory (metadata.yaml beside the .mcap).
+    let bag_dir = dir.path().join("rosbag2");
+    std::fs::create_dir(&bag_dir).unwrap();
+    std::fs::copy(&shard, bag_dir.join("rosbag2_0.mcap")).unwrap();
+    std::fs::write(bag_dir.join("metadata.yaml"), "rosbag2_bagfile_information: {}\n").unwrap();
+    let labels = dynforge_recording::read(&shard, None).unwrap().labels.unwrap();
+    for log in [&shard, &bag_dir] {
+        let info = dynforge(&["info", log.to_str().unwrap()]);
+        assert!(info.status.success(), "{}", String::from_utf8_lossy(&info.stderr));
+        let text = String::from_utf8(info.stdout).unwrap();
+        let n = bag.joint_states.len();
+        assert!(text.contains(&format!("/joint_states: {n} messages, 1000.0 Hz mean")), "{text}");
+        assert!(text.contains(&format!("Duration:    {:.3} s", (n - 1) as f64 * 1e-3)), "{text}");
+        assert!(text.contains("Robot:       df6_s1_r7 (6 moving joints"), "{text}");
+        assert!(text.contains("robot 7, seed 1") && text.contains("trajectory 3"), "{text}");
+        assert!(text.contains(&format!("mass_l2 {:.5}", labels[dynforge_proto::labels::index_of("mass_l2").unwrap()])));
+    }
 }
 
 #[test]

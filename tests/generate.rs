@@ -295,3 +295,205 @@ fn a_hung_job_is_retried_then_recorded_as_failed_with_the_reason() {
     let verify = dynforge(&["verify", dir.path().to_str().unwrap()]);
     assert!(verify.status.success(), "{}", String::from_utf8_lossy(&verify.stdout));
 }
+
+#[test]
+fn two_coordinators_started_together_on_one_directory_one_runs_and_the_other_is_refused() {
+    for round in 0..20 {
+        let dir = tempfile::tempdir().unwrap();
+        let args = generate_args(dir.path(), "2", "2", &["--workers", "1"]);
+        let run = || Command::new(EXE).args(&args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+        let (a, b) = (run(), run());
+        let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+        let ran: Vec<&Output> = [&a, &b].into_iter().filter(|o| o.status.success()).collect();
+        let refused: Vec<&Output> = [&a, &b].into_iter().filter(|o| !o.status.success()).collect();
+        assert_eq!(ran.len(), 1, "round {round}: exactly one runs");
+        let why = String::from_utf8_lossy(&refused[0].stderr);
+        assert!(why.contains("another generate is using this directory (pid "), "round {round}: {why}");
+        assert_exactly_once(dir.path(), 4);
+        assert_verifies(dir.path());
+    }
+}
+
+#[test]
+fn a_refused_generate_touches_nothing_of_the_live_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut live = spawn(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
+    wait_for_entries(dir.path(), 2, &mut live);
+    let manifest = std::fs::read(dir.path().join("manifest.toml")).unwrap();
+    // Repeated refused starts with other settings: before the lock, each deleted the live run's files in flight and
+    // could rewrite the manifest (--robots 8 grows it) before noticing the other coordinator.
+    for _ in 0..5 {
+        let o = dynforge(&generate_args(dir.path(), "8", "4", &["--workers", "2"]));
+        assert!(!o.status.success());
+        assert!(String::from_utf8_lossy(&o.stderr).contains("another generate is using this directory"));
+        assert_eq!(std::fs::read(dir.path().join("manifest.toml")).unwrap(), manifest, "manifest rewritten");
+    }
+    // verify during the run says so instead of calling its files in flight extra.
+    let v = dynforge(&["verify", dir.path().to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&v.stdout).contains("a generation is live (pid "), "{v:?}");
+    assert!(live.wait().unwrap().success());
+    assert_exactly_once(dir.path(), 24);
+    assert!(ledger_entries(dir.path()).iter().all(|e| !matches!(e.status, ledger::Status::Failed { .. })));
+    assert_verifies(dir.path());
+}
+
+#[test]
+fn workers_die_with_their_coordinator_and_a_resume_right_after_gives_the_same_dataset() {
+    let base = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(base.path(), "3", "4", &["--workers", "2"])).status.success());
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = spawn(&generate_args(dir.path(), "3", "4", &["--workers", "2"]));
+    wait_for_entries(dir.path(), 3, &mut child);
+    let workers = children_of(child.id());
+    assert_eq!(workers.len(), 2);
+    // Only the coordinator is killed: its workers are orphans, possibly inside a job.
+    kill(child.id(), "-9");
+    let _ = child.wait();
+    let out = dynforge(&generate_args(dir.path(), "3", "4", &["--workers", "2"]));
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for w in workers {
+        let state = std::fs::read_to_string(format!("/proc/{w}/stat")).unwrap_or_default();
+        let running = state.rsplit_once(')').is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z'));
+        assert!(!running, "orphan worker {w} still runs: {state}");
+    }
+    assert_exactly_once(dir.path(), 12);
+    assert_eq!(shard_hashes(dir.path()), shard_hashes(base.path()), "identical shards, none extra");
+    assert_verifies(dir.path());
+}
+
+#[test]
+fn a_ledger_without_its_manifest_is_not_reinterpreted_under_other_settings() {
+    let dir = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(dir.path(), "2", "3", &["--workers", "1"])).status.success());
+    let ledger = std::fs::read(dir.path().join("ledger.tsv")).unwrap();
+    std::fs::remove_file(dir.path().join("manifest.toml")).unwrap();
+    // Job numbers are robot * trajectories + t: with --trajectories 5 the six recorded jobs would become others.
+    let o = dynforge(&generate_args(dir.path(), "3", "5", &["--workers", "1"]));
+    assert!(!o.status.success());
+    let why = String::from_utf8_lossy(&o.stderr);
+    assert!(why.contains("records 6 job(s) but manifest.toml is missing"), "{why}");
+    assert_eq!(std::fs::read(dir.path().join("ledger.tsv")).unwrap(), ledger, "ledger changed");
+    assert!(!dir.path().join("manifest.toml").exists(), "a manifest was written for settings nobody ran");
+}
+
+#[test]
+fn lost_and_damaged_shards_are_made_again_and_never_read_as_data() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = generate_args(dir.path(), "2", "3", &["--workers", "1"]);
+    assert!(dynforge(&args).status.success());
+    let want = shard_hashes(dir.path());
+    let names: Vec<&String> = want.keys().collect();
+    let shards = dir.path().join("shards");
+
+    // A deleted shard: the resume notices and makes it again.
+    std::fs::remove_file(shards.join(names[0])).unwrap();
+    let o = dynforge(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("1 recorded shard(s) are missing"), "{o:?}");
+    assert_eq!(shard_hashes(dir.path()), want);
+
+    // A label edited in place (same length): readers refuse the file, verify names it, --repair marks its job.
+    let path = shards.join(names[1]);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.windows(7).position(|w| w == b"mass_l2").unwrap();
+    let digit = (at..bytes.len()).find(|&k| bytes[k].is_ascii_digit()).unwrap();
+    bytes[digit] = if bytes[digit] == b'9' { b'8' } else { b'9' };
+    std::fs::write(&path, &bytes).unwrap();
+    let stats = dynforge(&["dataset", "stats", dir.path().to_str().unwrap()]);
+    let why = String::from_utf8_lossy(&stats.stderr);
+    assert!(why.contains(names[1].as_str()) && why.contains("changed or damaged"), "{why}");
+    let v = dynforge(&["verify", dir.path().to_str().unwrap()]);
+    assert!(!v.status.success() && String::from_utf8_lossy(&v.stderr).contains("--repair"), "{v:?}");
+    let r = dynforge(&["verify", dir.path().to_str().unwrap(), "--repair"]);
+    assert!(String::from_utf8_lossy(&r.stderr).contains("1 job(s) recorded as failed"), "{r:?}");
+    assert!(dir.path().join("quarantine").join(names[1]).exists(), "the damaged file is kept aside");
+    let o = dynforge(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(shard_hashes(dir.path()), want, "the same bytes as the first run");
+    assert_verifies(dir.path());
+}
+
+/// A tmpfs of `mb` megabytes mounted on a fresh directory, unmounted when dropped; `None` where mounting is not
+/// allowed (not root, or a container without the capability).
+struct SmallDisk(tempfile::TempDir);
+
+impl SmallDisk {
+    fn mount(mb: u32) -> Option<SmallDisk> {
+        let dir = tempfile::tempdir().ok()?;
+        let ok = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &format!("size={mb}m"), "tmpfs", dir.path().to_str()?])
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        ok.then_some(SmallDisk(dir))
+    }
+
+    fn grow(&self, mb: u32) {
+        let remount = format!("remount,size={mb}m");
+        assert!(
+            Command::new("mount").args(["-o", &remount, self.0.path().to_str().unwrap()]).status().unwrap().success()
+        );
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg(self.0.path()).status();
+    }
+}
+
+#[test]
+fn a_full_disk_fails_jobs_naming_it_and_a_resume_with_space_completes_the_same_dataset() {
+    let Some(disk) = SmallDisk::mount(3) else {
+        eprintln!("skipped: cannot mount a tmpfs here (needs root)");
+        return;
+    };
+    let base = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(base.path(), "2", "4", &["--workers", "1"])).status.success());
+    let dir = disk.0.path().join("run");
+    let args = generate_args(&dir, "2", "4", &["--workers", "1"]);
+    // Eight shards of ~1 MB on 3 MB: the disk fills after two or three.
+    let o = dynforge(&args);
+    assert!(!o.status.success(), "a run that could not write its shards must not succeed");
+    let ledger = std::fs::read_to_string(dir.join("ledger.tsv")).unwrap_or_default();
+    let said = format!("{}{ledger}", String::from_utf8_lossy(&o.stderr));
+    assert!(said.contains("No space left on device"), "ENOSPC is not named:\n{said}");
+    disk.grow(64);
+    let o = dynforge(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(shard_hashes(&dir), shard_hashes(base.path()), "the same dataset as with space throughout");
+    assert_verifies(&dir);
+}
+
+#[test]
+fn three_partitions_merge_into_the_single_host_directory() {
+    let single = tempfile::tempdir().unwrap();
+    assert!(dynforge(&generate_args(single.path(), "4", "2", &["--workers", "2"])).status.success());
+    let root = tempfile::tempdir().unwrap();
+    let parts: Vec<std::path::PathBuf> = (0..3).map(|i| root.path().join(format!("part{i}"))).collect();
+    for (i, p) in parts.iter().enumerate() {
+        let part = format!("{i}/3");
+        assert!(dynforge(&generate_args(p, "4", "2", &["--workers", "1", "--partition", &part])).status.success());
+    }
+    let out = root.path().join("merged");
+    let arg = |p: &Path| p.to_str().unwrap().to_string();
+    // Two of three is not the run.
+    let o = dynforge(&["merge", "--out", &arg(&out), &arg(&parts[0]), &arg(&parts[2])]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("partition(s) 1/3 missing"), "{o:?}");
+    assert!(!out.join("manifest.toml").exists());
+
+    let o = dynforge(&["merge", "--out", &arg(&out), &arg(&parts[2]), &arg(&parts[0]), &arg(&parts[1])]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("merged 3 partitions: 8 shards (8 hard-linked, 0 copied)"));
+    assert_eq!(shard_hashes(&out), shard_hashes(single.path()), "byte-identical shards");
+    assert_eq!(
+        std::fs::read(out.join("manifest.toml")).unwrap(),
+        std::fs::read(single.path().join("manifest.toml")).unwrap()
+    );
+    let set = |d: &Path| ledger_entries(d).iter().map(|e| format!("{e:?}")).collect::<BTreeSet<_>>();
+    assert_eq!(set(&out), set(single.path()), "the same ledger records");
+    assert_verifies(&out);
+    // Merging again into the same place is refused, not mixed.
+    let o = dynforge(&["merge", "--out", &arg(&out), &arg(&parts[0]), &arg(&parts[1]), &arg(&parts[2])]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("must be new or empty"), "{o:?}");
+}

@@ -8,7 +8,9 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod ledger;
+pub mod lock;
 pub mod manifest;
+pub mod merge;
 pub mod plan;
 pub mod run;
 pub mod status;

@@ -28,8 +28,9 @@ pub enum StatusError {
 pub enum RunStatus {
     /// A coordinator runs and published this.
     Live(StatusMsg),
-    /// None runs: the ledger's counts for the manifest's jobs.
-    Stopped { progress: Progress, pending: u64 },
+    /// None publishes here: the ledger's counts for the manifest's jobs. `holder` is who holds the directory's lock
+    /// if someone does: a coordinator on another host sharing the directory (its status is in that host's memory).
+    Stopped { progress: Progress, pending: u64, holder: Option<String> },
 }
 
 /// The standing of the run in `dir`.
@@ -45,7 +46,7 @@ pub fn status(dir: &Path) -> Result<RunStatus, StatusError> {
     let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
     let progress = Progress::from_ledger(total, &entries);
     let pending = total.saturating_sub(progress.finished());
-    Ok(RunStatus::Stopped { progress, pending })
+    Ok(RunStatus::Stopped { progress, pending, holder: crate::lock::holder(dir) })
 }
 
 impl RunStatus {
@@ -57,9 +58,9 @@ impl RunStatus {
                 "in_flight": s.in_flight, "workers_alive": s.workers_alive, "rate_per_s": s.rate_per_s,
                 "eta_s": s.eta_s, "respawns": s.respawns, "coordinator_pid": s.coordinator_pid,
             }),
-            RunStatus::Stopped { progress: p, pending } => serde_json::json!({
-                "live": false, "total": p.total, "done": p.done, "discarded": p.discarded, "failed": p.failed,
-                "reasons": p.reasons, "pending": pending,
+            RunStatus::Stopped { progress: p, pending, holder } => serde_json::json!({
+                "live": holder.is_some(), "total": p.total, "done": p.done, "discarded": p.discarded,
+                "failed": p.failed, "reasons": p.reasons, "pending": pending, "holder": holder,
             }),
         }
     }
@@ -83,11 +84,15 @@ impl std::fmt::Display for RunStatus {
                 s.rate_per_s,
                 s.eta_s
             ),
-            RunStatus::Stopped { progress: p, pending } => {
+            RunStatus::Stopped { progress: p, pending, holder } => {
                 let reasons: Vec<String> = p.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
+                let state = match holder {
+                    Some(h) => format!("running ({h}), no live figures on this host; the ledger has"),
+                    None => "not running:".into(),
+                };
                 write!(
                     f,
-                    "not running: {}/{} jobs finished (done {}, discarded {}{}, failed {}); {pending} pending",
+                    "{state} {}/{} jobs finished (done {}, discarded {}{}, failed {}); {pending} pending",
                     p.finished(),
                     p.total,
                     p.done,

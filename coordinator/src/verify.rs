@@ -4,7 +4,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use dynforge_proto::LABELS;
-use dynforge_proto::run_dir::{LEDGER, SHARDS};
+use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 use dynforge_worker::job::{Job, shard_name};
 
@@ -30,6 +30,8 @@ pub struct Report {
     pub corrupt: Vec<(String, String)>,
     /// Discards by reason code.
     pub reasons: BTreeMap<String, usize>,
+    /// Who holds the directory's lock, when a generation is live there (its files in flight are not counted).
+    pub live: Option<String>,
 }
 
 impl Report {
@@ -41,10 +43,15 @@ impl Report {
 impl std::fmt::Display for Report {
     /// The counts, then one line per missing, extra and corrupt shard.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(holder) = &self.live {
+            writeln!(f, "a generation is live ({holder}): its files in flight are not counted")?;
+        }
+        let reasons: Vec<String> = self.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
+        let reasons = if reasons.is_empty() { String::new() } else { format!(" ({})", reasons.join(", ")) };
         writeln!(
             f,
-            "{} jobs planned: {} done, {} discarded {:?}, {} failed, {} pending",
-            self.planned, self.done, self.discarded, self.reasons, self.failed, self.pending
+            "{} jobs planned: {} done, {} discarded{reasons}, {} failed, {} pending",
+            self.planned, self.done, self.discarded, self.failed, self.pending
         )?;
         for m in &self.missing {
             writeln!(f, "missing: {m}")?;
@@ -69,6 +76,8 @@ pub enum VerifyError {
     Ledger(#[from] ledger::LedgerError),
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
+    #[error(transparent)]
+    Lock(#[from] crate::lock::LockError),
 }
 
 /// Checks one shard against its ledger entry; the reason if it fails.
@@ -105,7 +114,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
     let entries = ledger::read(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();
     let shards = dir.join(SHARDS);
-    let mut report = Report::default();
+    let mut report = Report { live: crate::lock::holder(dir), ..Report::default() };
     let planned: BTreeMap<u64, Job> =
         plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition)
             .map(|j| (plan::job_id(&j, manifest.trajectories), j))
@@ -146,7 +155,8 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
             for entry in listing {
                 let entry = entry.map_err(|source| VerifyError::Io { path: shards.display().to_string(), source })?;
                 let name = entry.file_name().to_string_lossy().to_string();
-                if !expected_files.contains(&name) {
+                let in_flight = report.live.is_some() && is_temporary(&name);
+                if !expected_files.contains(&name) && !in_flight {
                     report.extra.push(name);
                 }
             }
@@ -156,4 +166,39 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
     }
     report.extra.sort();
     Ok(report)
+}
+
+/// Directory the damaged shards are moved to by [`repair`] (kept, not deleted: they may be all there is of a job's
+/// data if its rerun fails).
+pub const QUARANTINE: &str = "quarantine";
+
+/// Makes what `report` found missing or corrupt rerun on the next `generate`: corrupt shards move to
+/// `DIR/quarantine/`, and each of those jobs gets a `failed` ledger entry naming the reason (a resume retries failed
+/// jobs). Takes the directory's lock, so it refuses while a generation runs. Returns the jobs marked.
+pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
+    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO)?;
+    let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
+    let (mut ledger, entries) = ledger::Ledger::open(&dir.join(LEDGER))?;
+    let engine = manifest.sim.engine.name();
+    let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let corrupt: BTreeMap<&str, &str> = report.corrupt.iter().map(|(n, why)| (n.as_str(), why.as_str())).collect();
+    let quarantine = dir.join(QUARANTINE);
+    let io = |path: &Path, source| VerifyError::Io { path: path.display().to_string(), source };
+    let mut marked = 0;
+    for e in latest.values().filter(|e| matches!(e.status, Status::Done { .. })) {
+        let name = shard_name(&Job { seed: manifest.seed, robot: e.robot, trajectory: e.trajectory }, engine);
+        let message = if report.missing.contains(&name) {
+            "shard missing (found by verify)".to_string()
+        } else if let Some(why) = corrupt.get(name.as_str()) {
+            std::fs::create_dir_all(&quarantine).map_err(|s| io(&quarantine, s))?;
+            let from = dir.join(SHARDS).join(&name);
+            std::fs::rename(&from, quarantine.join(&name)).map_err(|s| io(&from, s))?;
+            format!("shard corrupt (found by verify, moved to {QUARANTINE}/): {why}")
+        } else {
+            continue;
+        };
+        ledger.append(&ledger::Entry { status: Status::Failed { message }, ..(*e).clone() })?;
+        marked += 1;
+    }
+    Ok(marked)
 }

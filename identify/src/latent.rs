@@ -12,11 +12,11 @@
 
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_recording::JointTrajectory;
-use dynforge_robot::{Data, Model, regressor};
+use dynforge_robot::{Data, Model};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::samples::{REST_SPEED, for_each};
+use crate::samples::{REST_SPEED, for_each, row_support};
 use crate::solve::eigen;
 
 /// Principal directions of the prior's (standardised) covariance below this fraction of the largest variance are
@@ -259,14 +259,9 @@ pub fn latent_blocks(
     let r = prior.rank;
     let mut blocks = vec![LatentSums::new(n, r); traj.len().div_ceil(block)];
     let mut data = Data::new(model);
-    // Row j of Y is zero outside the inertial parameters of links j.. and joint j's friction pair.
-    let support: Vec<Vec<usize>> =
-        (0..n).map(|j| (NI * j..NI * n).chain([NI * n + NF * j, NI * n + NF * j + 1]).collect()).collect();
+    let support = row_support(n);
     let mut u = vec![0.0; r];
-    let mut i = 0usize;
-    for_each(traj, 0..traj.len(), |q, qd, qdd, tau| {
-        i += 1; // sample index: for_each starts at 1
-        let y = regressor(model, &mut data, q, qd, qdd);
+    for_each(model, &mut data, traj, 0..traj.len(), |i, y, qd, tau| {
         let sums = &mut blocks[i / block];
         for j in 0..n {
             if qd[j].abs() < REST_SPEED {

@@ -1,13 +1,13 @@
 //! Normal equations of the regressor, per joint, accumulated over recordings.
 
-use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI, num_params};
-use dynforge_robot::{Data, Model, regressor};
+use dynforge_proto::params::num_params;
+use dynforge_robot::{Data, Model};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use dynforge_recording::JointTrajectory;
 
-use crate::samples::{REST_SPEED, for_each};
+use crate::samples::{REST_SPEED, for_each, row_support};
 
 /// `sum y y^T`, `sum y tau`, `sum tau^2`, `sum tau` and the count over the moving samples of one joint, where `y`
 /// is that joint's row of the regressor. Kept per joint so that a parameter set's torque error can be normalised by
@@ -57,11 +57,8 @@ impl NormalEquations {
             return Err(IdentifyError::Dof(traj.joints().min(model.dof()), n));
         }
         let mut data = Data::new(model);
-        // Row j of Y is zero outside the inertial parameters of links j.. and joint j's friction pair.
-        let support: Vec<Vec<usize>> =
-            (0..n).map(|j| (NI * j..NI * n).chain([NI * n + NF * j, NI * n + NF * j + 1]).collect()).collect();
-        for_each(traj, range, |q, qd, qdd, tau| {
-            let y = regressor(model, &mut data, q, qd, qdd);
+        let support = row_support(n);
+        for_each(model, &mut data, traj, range, |_, y, qd, tau| {
             for j in 0..n {
                 if qd[j].abs() < REST_SPEED {
                     continue;

@@ -7,9 +7,10 @@
 //! crate.
 
 pub mod dataset;
+pub mod info;
 mod read;
 pub mod resample;
 pub mod samples;
 
-pub use read::{GRID_DT, ReadError, Recording, read};
+pub use read::{GRID_DT, ReadError, Recording, log_file, read};
 pub use samples::JointTrajectory;

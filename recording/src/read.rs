@@ -35,8 +35,29 @@ pub struct Recording {
     pub robot: Option<u64>,
 }
 
-/// Reads a shard or bag; the robot comes from its `/robot_description` unless `model` is given.
+/// The MCAP file of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`).
+pub fn log_file(path: &Path) -> Result<PathBuf, ReadError> {
+    if !path.is_dir() {
+        return Ok(path.to_path_buf());
+    }
+    let content = |problem: String| ReadError::Content { file: path.display().to_string(), problem };
+    let listing = std::fs::read_dir(path).map_err(|e| content(e.to_string()))?;
+    let mut mcaps: Vec<PathBuf> = listing
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
+        .collect();
+    mcaps.sort();
+    match mcaps.len() {
+        1 => Ok(mcaps.remove(0)),
+        0 => Err(content("a directory with no .mcap file (a log is an MCAP file or a rosbag2 directory)".into())),
+        n => Err(content(format!("a directory with {n} .mcap files (a split bag): give one of them"))),
+    }
+}
+
+/// Reads a shard or bag (a file, or a rosbag2 directory of one); the robot comes from its `/robot_description`
+/// unless `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
+    let path = &log_file(path)?;
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let bag = dynforge_shard::read(path)?;

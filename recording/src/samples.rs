@@ -95,7 +95,18 @@ pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTraject
         ));
     }
     rows.sort_by_key(|r| r.0);
+    let messages = rows.len();
     rows.dedup_by_key(|r| r.0);
+    // A republished message repeats a stamp now and then; a driver that does not stamp repeats one throughout.
+    let repeated = messages - rows.len();
+    if repeated > 1 + messages / 100 {
+        return Err(err(format!(
+            "{repeated} of {messages} joint_states messages repeat an earlier header stamp ({} distinct, the first \
+             {:.6} s): the log's stamps do not tell when its samples were taken; record it with stamped messages",
+            rows.len(),
+            rows[0].0 as f64 * 1e-9
+        )));
+    }
     let mut out = JointTrajectory { names: names.to_vec(), ..JointTrajectory::default() };
     for (stamp, q, qd, tau) in rows {
         out.t.push(stamp as f64 * 1e-9);
@@ -167,5 +178,13 @@ mod tests {
         let e =
             from_bag(&Bag { joint_states: vec![short], ..Bag::default() }, &names, Path::new("r.mcap")).unwrap_err();
         assert!(e.to_string().contains("1 effort values for 2 joints"), "{e}");
+    }
+
+    #[test]
+    fn a_log_without_stamps_is_refused_instead_of_shrinking_to_one_sample() {
+        let names: Vec<String> = ["j0"].iter().map(|s| s.to_string()).collect();
+        let bag = Bag { joint_states: (0..8001).map(|k| message(0, &["j0"], k as f64)).collect(), ..Bag::default() };
+        let e = from_bag(&bag, &names, Path::new("unstamped.mcap")).unwrap_err().to_string();
+        assert!(e.starts_with("unstamped.mcap: 8000 of 8001 joint_states messages repeat"), "{e}");
     }
 }

@@ -143,6 +143,10 @@ pub enum ModelProblem {
     UnknownLink { joint: String, link: String },
     #[error("link '{link}' has more than one parent joint")]
     MultipleParents { link: String },
+    #[error("{kind} '{name}' is defined more than once")]
+    Duplicate { kind: &'static str, name: String },
+    #[error("elements are nested more than {0} deep (a URDF needs a handful of levels)")]
+    TooDeep(usize),
     #[error("the URDF has {0} root links (expected exactly one)")]
     Roots(usize),
     #[error("link '{link}' carries several moving branches (joints {joints}): only serial chains are supported")]

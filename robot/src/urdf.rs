@@ -5,7 +5,7 @@
 //! where it never moves), so real-world files such as the UR5's (with `base`, `ee_link` and `tool0` frames) load.
 //! Anything else (prismatic, floating, planar joints; two moving branches) is rejected with the element's name.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 use crate::model::{
@@ -25,12 +25,69 @@ pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
 /// Parses URDF text; `source_name` labels errors (usually the file path).
 pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    // The XML reader recurses per element: 20,000 nested elements overflowed the stack (an abort, not an error).
+    if nesting_exceeds(text, MAX_NESTING) {
+        return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
+    }
     let robot = urdf_rs::read_from_string(text).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
     build(&robot, source_name)
 }
 
+/// Deepest element nesting accepted. Real URDFs nest 3-5 levels (robot, link, inertial, origin); xacro output and
+/// vendor extensions (`<gazebo>`, `<ros2_control>`) add a few.
+const MAX_NESTING: usize = 256;
+
+/// Whether `text`'s elements nest deeper than `max`, by a scan of its tags (comments, declarations and quoted
+/// attribute values skipped). Malformed text is left to the XML reader to report.
+fn nesting_exceeds(text: &str, max: usize) -> bool {
+    let b = text.as_bytes();
+    let (mut i, mut depth) = (0usize, 0usize);
+    while let Some(open) = b[i..].iter().position(|&c| c == b'<').map(|p| p + i) {
+        let rest = &text[open..];
+        if rest.starts_with("<!--") {
+            i = rest.find("-->").map_or(b.len(), |e| open + e + 3);
+            continue;
+        }
+        // The tag's end, skipping '>' inside quoted attribute values.
+        let (mut end, mut quote) = (open + 1, None);
+        while end < b.len() {
+            match (b[end], quote) {
+                (q @ (b'"' | b'\''), None) => quote = Some(q),
+                (c, Some(q)) if c == q => quote = None,
+                (b'>', None) => break,
+                _ => {}
+            }
+            end += 1;
+        }
+        match b.get(open + 1) {
+            Some(b'/') => depth = depth.saturating_sub(1),
+            Some(b'!' | b'?') => {}
+            _ if end > 0 && b.get(end - 1) == Some(&b'/') => {}
+            _ => {
+                depth += 1;
+                if depth > max {
+                    return true;
+                }
+            }
+        }
+        i = end + 1;
+        if i >= b.len() {
+            break;
+        }
+    }
+    false
+}
+
 fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    let mut seen = HashSet::new();
+    for (kind, name) in
+        robot.links.iter().map(|l| ("link", &l.name)).chain(robot.joints.iter().map(|j| ("joint", &j.name)))
+    {
+        if !seen.insert((kind, name.as_str())) {
+            return Err(err(ModelProblem::Duplicate { kind, name: name.clone() }));
+        }
+    }
     let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
     let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
     let mut has_parent: HashMap<&str, &str> = HashMap::new();

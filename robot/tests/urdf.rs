@@ -119,6 +119,22 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
     assert!(matches!(p, ModelProblem::InvalidJoint { ref joint, .. } if joint == "j0"), "{msg}");
 
     assert_eq!(problem("<robot name='x'><link name='base'/></robot>").1, ModelProblem::NoMovingJoint);
+
+    // Two joints of one name (the second a fixed tool joint, so the chain itself is valid).
+    let (msg, p) = problem(&format!(
+        "<robot name='x'><link name='base'/>{l1}<link name='tool'/>{j0}<joint name='j0' type='fixed'><parent link='l1'/><child link='tool'/></joint></robot>"
+    ));
+    assert_eq!(p, ModelProblem::Duplicate { kind: "joint", name: "j0".into() }, "{msg}");
+    // Nesting deep enough to overflow the XML reader's stack (it aborted the process) is an error; a normal file's
+    // tags in comments and attribute values do not count.
+    let deep = format!("<robot name='x'>{}{}</robot>", "<a>".repeat(20_000), "</a>".repeat(20_000));
+    assert_eq!(problem(&deep).1, ModelProblem::TooDeep(256));
+    let shallow = format!(
+        "<robot name='x'><!-- <a><a><a> -->{}{}<link name='base'/>{l1}{j0}</robot>",
+        "<gazebo reference='x'><a b='c>d'>".repeat(100),
+        "</a></gazebo>".repeat(100)
+    );
+    assert!(urdf::parse(&shallow, "ok.urdf").is_ok(), "{:?}", urdf::parse(&shallow, "ok.urdf").err());
     let e = urdf::load("/nonexistent/robot.urdf").unwrap_err();
     assert!(e.to_string().starts_with("/nonexistent/robot.urdf: "), "{e}");
 }

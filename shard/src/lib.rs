@@ -37,8 +37,13 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> ShardError + '_ {
     move |source| ShardError::Io { path: path.to_path_buf(), source }
 }
 
+/// An MCAP error as ours. Its I/O variant stays an I/O error with the OS's own words ("No space left on device"):
+/// the MCAP crate's text for it ("I/O error from writing, or reading a compression stream") names no cause.
 fn mcap_err(path: &Path) -> impl Fn(mcap::McapError) -> ShardError + '_ {
-    move |e| ShardError::Mcap { path: path.to_path_buf(), message: e.to_string() }
+    move |e| match e {
+        mcap::McapError::Io(source) => ShardError::Io { path: path.to_path_buf(), source },
+        e => ShardError::Mcap { path: path.to_path_buf(), message: e.to_string() },
+    }
 }
 
 /// Writes a shard to `path` by the temporary-file rule ([`dynforge_proto::run_dir`]); the same content always gives
@@ -134,10 +139,41 @@ pub fn read(path: &Path) -> Result<Bag, ShardError> {
     read_bytes(&bytes, path)
 }
 
+/// Checks the CRC the writer put in the file's DataEnd record (MCAP's `data_section_crc`: every byte from the
+/// leading magic up to that record) when there is one. The reader checks each chunk's CRC but not this one, and
+/// the records outside chunks (our labels and job, the robot description) are covered by nothing else: a label edited
+/// in place (10.78 -> 90.78) was read, and trained on, without a word. Files without the CRC (0) pass.
+fn check_data_section(bytes: &[u8]) -> Result<(), String> {
+    const MAGIC: usize = 8;
+    const FOOTER: usize = 1 + 8 + 8 + 8 + 4;
+    const DATA_END: usize = 1 + 8 + 4;
+    let u64_at = |at: usize| bytes.get(at..at + 8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+    let Some(footer) = bytes.len().checked_sub(MAGIC + FOOTER) else { return Ok(()) };
+    if bytes[footer] != 0x02 {
+        return Ok(()); // no footer where the format puts it: the MCAP reader reports that
+    }
+    let summary_start = u64_at(footer + 9).unwrap_or(0) as usize;
+    let end = if summary_start == 0 { footer } else { summary_start };
+    let Some(data_end) = end.checked_sub(DATA_END) else { return Ok(()) };
+    if bytes[data_end] != 0x0F || u64_at(data_end + 1) != Some(4) {
+        return Ok(());
+    }
+    let recorded = u32::from_le_bytes(bytes[data_end + 9..data_end + 13].try_into().expect("4 bytes"));
+    let actual = crc32fast::hash(&bytes[..data_end]);
+    if recorded != 0 && recorded != actual {
+        return Err(format!(
+            "the data section's CRC is {actual:08x}, the file records {recorded:08x}: it was changed or damaged \
+             after it was written"
+        ));
+    }
+    Ok(())
+}
+
 /// Like [`read`], from memory; `path` only labels errors.
 pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
     let me = mcap_err(path);
     let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
+    check_data_section(bytes).map_err(content)?;
     let mut bag = Bag::default();
     let options = mcap::read::Options::ValidateChunkCrcs.into();
     for message in mcap::MessageStream::new_with_options(bytes, options).map_err(&me)? {
@@ -187,5 +223,35 @@ mod tests {
         assert_eq!(super::content_hash(b""), 0xcbf2_9ce4_8422_2325);
         assert_eq!(super::content_hash(b"a"), 0xaf63_dc4c_8601_ec8c);
         assert_eq!(super::content_hash(b"foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    #[test]
+    fn a_label_edited_in_place_is_refused_by_the_data_section_crc() {
+        use super::*;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("s.mcap");
+        let states: Vec<JointState> = (0..50)
+            .map(|k| JointState {
+                sec: 0,
+                nanosec: k * 1_000_000,
+                frame_id: String::new(),
+                name: vec!["j0".into()],
+                position: vec![k as f64],
+                velocity: vec![1.0],
+                effort: vec![0.5],
+            })
+            .collect();
+        let metadata: Metadata = [("labels".to_string(), [("mass_l2".to_string(), "10.78".to_string())].into())].into();
+        write(&path, &ShardContent { urdf: "<robot name='r'/>", joint_states: &states, metadata: &metadata }).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let bag = read_bytes(&bytes, &path).unwrap();
+        assert_eq!(bag.metadata["labels"]["mass_l2"], "10.78");
+
+        // The same length, so every offset still holds and only the CRC can tell.
+        let at = bytes.windows(5).position(|w| w == b"10.78").expect("the label's text is in the file");
+        let mut edited = bytes.clone();
+        edited[at] = b'9';
+        let e = read_bytes(&edited, &path).unwrap_err().to_string();
+        assert!(e.contains("s.mcap") && e.contains("changed or damaged after it was written"), "{e}");
     }
 }

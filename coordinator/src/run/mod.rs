@@ -14,12 +14,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use dynforge_ipc::{Coordinator, IpcError, RunId};
-use dynforge_proto::run_dir::{LEDGER, LOGS, SHARDS, is_temporary};
+use dynforge_proto::run_dir::{LEDGER, LOGS, MANIFEST, SHARDS, is_temporary};
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::Job;
+use dynforge_worker::job::{Job, shard_name};
 use dynforge_worker::simulate::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
+use crate::lock::{LockError, RunLock};
 use crate::manifest::{Manifest, ManifestError};
 use crate::plan::{self, Partition};
 use processes::Processes;
@@ -52,6 +53,13 @@ pub enum GenerateError {
     #[error("{0}")]
     Settings(String),
     #[error(transparent)]
+    Lock(#[from] LockError),
+    #[error(
+        "{dir}: {LEDGER} records {entries} job(s) but {MANIFEST} is missing, so the settings they were made with are \
+         unknown (other settings would reinterpret them); restore {MANIFEST} or use a new directory"
+    )]
+    NoManifest { dir: String, entries: usize },
+    #[error(transparent)]
     Manifest(#[from] ManifestError),
     #[error(transparent)]
     Ledger(#[from] LedgerError),
@@ -63,15 +71,22 @@ pub enum GenerateError {
     Interrupted { finished: u64, total: u64 },
 }
 
-/// Removes temporary files that crashed writers left in the shard directory.
+/// How long a starting run waits for the directory's previous holder to go away: the orphan workers of a killed
+/// coordinator get their kill signal as it dies, and release the lock within milliseconds.
+const LOCK_WAIT: Duration = Duration::from_secs(5);
+
+/// Removes temporary files that crashed writers left in the shard directory (only its owner may: see [`RunLock`]).
 fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
     let mut n = 0;
     for entry in std::fs::read_dir(shards)? {
         let entry = entry?;
         let name = entry.file_name().to_string_lossy().to_string();
         if is_temporary(&name) {
-            std::fs::remove_file(entry.path())?;
-            n += 1;
+            match std::fs::remove_file(entry.path()) {
+                Ok(()) => n += 1,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => return Err(e),
+            }
         }
     }
     Ok(n)
@@ -109,9 +124,18 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
             cfg.trajectories
         )));
     }
+    // Nothing in the directory is touched before it is ours.
+    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT)?;
     let dir_err = |source| GenerateError::Dir { dir: cfg.dir.display().to_string(), source };
     std::fs::create_dir_all(cfg.dir.join(SHARDS)).map_err(dir_err)?;
     std::fs::create_dir_all(cfg.dir.join(LOGS)).map_err(dir_err)?;
+    // The ledger's lines name jobs by number, which only the manifest's settings map back to robots and trajectories.
+    if !cfg.dir.join(MANIFEST).exists() {
+        let entries = crate::ledger::read(&cfg.dir.join(LEDGER))?.len();
+        if entries > 0 {
+            return Err(GenerateError::NoManifest { dir: cfg.dir.display().to_string(), entries });
+        }
+    }
     let manifest =
         Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
     if let Some(before) = manifest.create_or_check(&cfg.dir)? {
@@ -129,9 +153,26 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
     let failed = |e: &Entry| matches!(e.status, Status::Failed { .. });
     let retried = latest.values().filter(|e| failed(e)).count();
-    let finished: HashMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
+    let mut finished: HashMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
     if retried > 0 {
         observer.message(&format!("retrying {retried} job(s) that failed in an earlier run"));
+    }
+    // A recorded shard that is gone (deleted, lost with a disk) is made again: the job is deterministic. (A damaged
+    // one takes reading every file: `verify --repair` finds those and records them failed, so they rerun here too.)
+    let shards = cfg.dir.join(SHARDS);
+    let lost: Vec<u64> = finished
+        .iter()
+        .filter(|(_, e)| {
+            let job = Job { seed: cfg.seed, robot: e.robot, trajectory: e.trajectory };
+            matches!(e.status, Status::Done { .. }) && !shards.join(shard_name(&job, cfg.sim.engine.name())).exists()
+        })
+        .map(|(id, _)| *id)
+        .collect();
+    for id in &lost {
+        finished.remove(id);
+    }
+    if !lost.is_empty() {
+        observer.message(&format!("{} recorded shard(s) are missing: running their jobs again", lost.len()));
     }
     let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
     let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
@@ -151,7 +192,7 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     let id = RunId::for_dir(&cfg.dir)?;
     dynforge_ipc::cleanup_stale(&id)?;
     let mut ipc = Coordinator::new(&id, workers)?;
-    let mut procs = Processes::new(cfg.worker_command.clone(), cfg.dir.clone(), workers);
+    let mut procs = Processes::new(cfg.worker_command.clone(), cfg.dir.clone(), workers, lock);
     for k in 0..workers {
         procs.spawn(k)?;
         ipc.attach_worker(k)?;

@@ -1,23 +1,27 @@
 //! The worker processes: started with the run directory and a slot, their stderr into `logs/worker-K.log`, killed
-//! when hung or at the end.
+//! when hung or at the end, and by the kernel when the coordinator dies. They inherit the run directory's lock, so a
+//! new coordinator cannot start while one of them is still alive.
 
 use std::ffi::OsString;
+use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
 use dynforge_proto::run_dir::LOGS;
 
 use super::GenerateError;
+use crate::lock::RunLock;
 
 pub(super) struct Processes {
     command: Vec<OsString>,
     dir: PathBuf,
     children: Vec<Option<Child>>,
+    lock: RunLock,
 }
 
 impl Processes {
-    pub(super) fn new(command: Vec<OsString>, dir: PathBuf, slots: usize) -> Self {
-        Processes { command, dir, children: (0..slots).map(|_| None).collect() }
+    pub(super) fn new(command: Vec<OsString>, dir: PathBuf, slots: usize, lock: RunLock) -> Self {
+        Processes { command, dir, children: (0..slots).map(|_| None).collect(), lock }
     }
 
     /// Slots with a started process.
@@ -34,7 +38,28 @@ impl Processes {
             .open(logs.join(format!("worker-{slot}.log")))
             .map_err(|source| GenerateError::Dir { dir: logs.display().to_string(), source })?;
         let (program, args) = self.command.split_first().expect("a worker command");
-        let child = Command::new(program)
+        let (lock, parent) = (self.lock.fd(), std::process::id());
+        let mut command = Command::new(program);
+        // SAFETY: between fork and exec the closure makes only async-signal-safe system calls.
+        unsafe {
+            command.pre_exec(move || {
+                // Killed when the coordinator dies (the orphans of a `kill -9` used to run on and race the resume).
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // It may have died before the line above: then nobody would signal us.
+                if libc::getppid() as u32 != parent {
+                    libc::_exit(1);
+                }
+                // Keep the run directory's lock across exec.
+                let flags = libc::fcntl(lock, libc::F_GETFD);
+                if flags < 0 || libc::fcntl(lock, libc::F_SETFD, flags & !libc::FD_CLOEXEC) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+        let child = command
             .args(args)
             .arg("--dir")
             .arg(&self.dir)

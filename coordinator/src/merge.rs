@@ -1,0 +1,145 @@
+//! Partitions of one run (`generate --partition i/n` on n hosts or array tasks) merged into the directory a single
+//! host would have written: the same manifest (partition 0/1), every partition's ledger records, and the shards,
+//! hard-linked where the filesystem allows (nothing is copied on a shared filesystem) and copied otherwise.
+//!
+//! A merge is refused unless the partitions are exactly the `n` of one run (same settings, indices `0..n` once each)
+//! and each verifies complete: every planned job recorded done or discarded, every shard present with its recorded
+//! hash. The output then needs no further check, and training reads it like any run directory.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::run_dir::{LEDGER, SHARDS};
+use dynforge_worker::job::{Job, shard_name};
+
+use crate::ledger::{self, Status};
+use crate::lock::RunLock;
+use crate::manifest::{Manifest, ManifestError};
+use crate::plan::Partition;
+use crate::verify::{VerifyError, verify};
+
+#[derive(Debug, thiserror::Error)]
+pub enum MergeError {
+    #[error("{0}: no run manifest here (not a dynforge generate directory)")]
+    NoManifest(String),
+    #[error("{dir}: {problem}")]
+    Partition { dir: String, problem: String },
+    #[error("the partitions do not make one run: {0}")]
+    Set(String),
+    #[error("{0}: the output directory must be new or empty")]
+    OutputNotEmpty(String),
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error(transparent)]
+    Manifest(#[from] ManifestError),
+    #[error(transparent)]
+    Verify(#[from] VerifyError),
+    #[error(transparent)]
+    Ledger(#[from] ledger::LedgerError),
+    #[error(transparent)]
+    Lock(#[from] crate::lock::LockError),
+}
+
+/// What a merge did.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Merged {
+    pub partitions: usize,
+    pub shards: usize,
+    /// Shards that had to be copied (another filesystem); the rest are hard links.
+    pub copied: usize,
+    pub ledger_entries: usize,
+}
+
+/// Merges the partition directories `parts` into the new directory `out`. `progress(k, n)` follows the verification
+/// of each partition's shards.
+pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Merged, MergeError> {
+    let io = |path: &Path, source| MergeError::Io { path: path.display().to_string(), source };
+    // Every partition's settings, and the set of partitions.
+    let mut manifests = Vec::new();
+    for dir in parts {
+        let m = Manifest::load(dir)?.ok_or_else(|| MergeError::NoManifest(dir.display().to_string()))?;
+        manifests.push(m);
+    }
+    let Some(first) = manifests.first().cloned() else {
+        return Err(MergeError::Set("no partition directories given".into()));
+    };
+    let n = first.partition.count;
+    let mut by_index: BTreeMap<u32, &PathBuf> = BTreeMap::new();
+    for (dir, m) in parts.iter().zip(&manifests) {
+        let whole = Manifest { partition: Partition::WHOLE, ..m.clone() };
+        if whole != (Manifest { partition: Partition::WHOLE, ..first.clone() }) {
+            return Err(MergeError::Partition {
+                dir: dir.display().to_string(),
+                problem: format!("its settings differ from {}'s", parts[0].display()),
+            });
+        }
+        if m.partition.count != n {
+            return Err(MergeError::Partition {
+                dir: dir.display().to_string(),
+                problem: format!("partition {}/{}, the others are of {n}", m.partition.index, m.partition.count),
+            });
+        }
+        if let Some(other) = by_index.insert(m.partition.index, dir) {
+            return Err(MergeError::Set(format!(
+                "partition {}/{n} is given twice ({} and {})",
+                m.partition.index,
+                other.display(),
+                dir.display()
+            )));
+        }
+    }
+    let missing: Vec<String> = (0..n).filter(|i| !by_index.contains_key(i)).map(|i| format!("{i}/{n}")).collect();
+    if !missing.is_empty() {
+        return Err(MergeError::Set(format!("partition(s) {} missing", missing.join(", "))));
+    }
+    // Each complete and intact.
+    for dir in parts {
+        let report = verify(dir, &mut progress)?;
+        let problem = if report.live.is_some() {
+            "a generation is still running in it".to_string()
+        } else if !report.is_ok() {
+            format!("does not verify: {}", report.to_string().trim_end().replace('\n', "; "))
+        } else if report.pending + report.failed > 0 {
+            format!(
+                "incomplete: {} job(s) pending, {} failed; rerun its generate command",
+                report.pending, report.failed
+            )
+        } else {
+            continue;
+        };
+        return Err(MergeError::Partition { dir: dir.display().to_string(), problem });
+    }
+
+    // The output: ours before anything is written.
+    let _lock = RunLock::acquire(out, std::time::Duration::ZERO)?;
+    let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
+    if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
+        return Err(MergeError::OutputNotEmpty(out.display().to_string()));
+    }
+    let shards_out = out.join(SHARDS);
+    std::fs::create_dir_all(&shards_out).map_err(|e| io(&shards_out, e))?;
+    let (mut ledger, _) = ledger::Ledger::open(&out.join(LEDGER))?;
+    let engine = first.sim.engine.name();
+    let mut merged = Merged { partitions: parts.len(), ..Merged::default() };
+    for dir in by_index.values() {
+        // The latest record of each job (a failed attempt followed by its rerun keeps the rerun).
+        let entries = ledger::read(&dir.join(LEDGER))?;
+        let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+        for e in latest.values() {
+            if let Status::Done { .. } = e.status {
+                let name = shard_name(&Job { seed: first.seed, robot: e.robot, trajectory: e.trajectory }, engine);
+                let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
+                if std::fs::hard_link(&from, &to).is_err() {
+                    std::fs::copy(&from, &to).map_err(|e| io(&from, e))?;
+                    merged.copied += 1;
+                }
+                merged.shards += 1;
+            }
+            ledger.append(e)?;
+            merged.ledger_entries += 1;
+        }
+    }
+    // Last, so that an interrupted merge leaves no directory that passes for a finished run.
+    Manifest { partition: Partition::WHOLE, ..first }.create_or_check(out)?;
+    Ok(merged)
+}

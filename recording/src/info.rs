@@ -1,0 +1,88 @@
+//! What a log holds, at a glance (`dynforge info`, after `ros2 bag info`): its joint-state stream, its robot and,
+//! for a dataset shard, its job and labels. It reads the file as identification would, so a log `info` describes
+//! without complaint is one `identify` and `estimate` accept as far as the file goes.
+
+use std::path::Path;
+
+use dynforge_proto::shard::{META_JOB, META_LABELS};
+
+use crate::read::{ReadError, log_file};
+
+/// A log's summary.
+#[derive(Debug, Clone)]
+pub struct Info {
+    pub file: String,
+    pub bytes: u64,
+    pub joint_states: usize,
+    /// First and last header stamp [s].
+    pub span: Option<(f64, f64)>,
+    /// Joint names of the first message.
+    pub joints: Vec<String>,
+    /// The robot's name and moving joints, from `/robot_description`; or why it could not be read.
+    pub robot: Option<Result<(String, usize), String>>,
+    /// Metadata records: name -> (key, value), in file order of keys.
+    pub metadata: Vec<(String, Vec<(String, String)>)>,
+}
+
+impl Info {
+    /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
+    pub fn of(path: &Path) -> Result<Info, ReadError> {
+        let file = log_file(path)?;
+        let bytes = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);
+        let bag = dynforge_shard::read(&file)?;
+        let stamps: Vec<f64> = bag.joint_states.iter().map(|m| m.stamp_ns() as f64 * 1e-9).collect();
+        let span = stamps.iter().copied().reduce(f64::min).zip(stamps.iter().copied().reduce(f64::max));
+        let robot = bag.robot_description.as_ref().map(|text| {
+            dynforge_robot::urdf::parse(text, "/robot_description")
+                .map(|m| (m.name().to_string(), m.dof()))
+                .map_err(|e| e.problem.to_string())
+        });
+        Ok(Info {
+            file: file.display().to_string(),
+            bytes,
+            joint_states: bag.joint_states.len(),
+            span,
+            joints: bag.joint_states.first().map(|m| m.name.clone()).unwrap_or_default(),
+            robot,
+            metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
+        })
+    }
+}
+
+impl std::fmt::Display for Info {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "File:        {} ({:.1} MB)", self.file, self.bytes as f64 / 1e6)?;
+        match self.span {
+            Some((a, b)) => {
+                let rate = if b > a { (self.joint_states as f64 - 1.0) / (b - a) } else { f64::NAN };
+                writeln!(f, "Duration:    {:.3} s (stamps {a:.6} .. {b:.6} s)", b - a)?;
+                writeln!(f, "/joint_states: {} messages, {rate:.1} Hz mean", self.joint_states)?;
+            }
+            None => writeln!(f, "/joint_states: none")?,
+        }
+        writeln!(f, "Joints:      {}", if self.joints.is_empty() { "-".into() } else { self.joints.join(", ") })?;
+        match &self.robot {
+            Some(Ok((name, dof))) => writeln!(f, "Robot:       {name} ({dof} moving joints, from /robot_description)")?,
+            Some(Err(why)) => writeln!(f, "Robot:       /robot_description unreadable: {why}")?,
+            None => writeln!(f, "Robot:       no /robot_description (give the URDF to identify or estimate)")?,
+        }
+        for (name, entries) in &self.metadata {
+            let title = match name.as_str() {
+                META_JOB => "Job",
+                META_LABELS => "Labels",
+                other => other,
+            };
+            let short = |v: &str| match v.parse::<f64>() {
+                Ok(x) if x != 0.0 && x.abs() < 1e-2 => format!("{x:.4e}"),
+                Ok(x) if x.fract() != 0.0 => format!("{x:.5}"),
+                _ => v.to_string(),
+            };
+            let text: Vec<String> = entries.iter().map(|(k, v)| format!("{k} {}", short(v))).collect();
+            writeln!(f, "{title}:")?;
+            for line in text.chunks(6) {
+                writeln!(f, "  {}", line.join(", "))?;
+            }
+        }
+        Ok(())
+    }
+}

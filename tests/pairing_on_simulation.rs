@@ -1,0 +1,37 @@
+//! Identification's pairing of torque with motion, against the simulator: the true parameters of a generated robot
+//! must reproduce the torques it logged, on every joint, stops and starts included.
+
+use dynforge_identify::NormalEquations;
+use dynforge_recording::JointTrajectory;
+use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::parameters::dynamic_parameters;
+use dynforge_worker::simulate::{SimConfig, simulate};
+use dynforge_worker::trajectory::{Move, waypoints};
+
+#[test]
+fn true_parameters_reproduce_the_simulated_torques_on_every_joint() {
+    let cfg = SimConfig::default();
+    let mut worst = 0.0f64;
+    for (robot, leg) in [(4, 0), (4, 3), (9, 1)] {
+        let r = generate(&GeneratorConfig::default(), 5, robot).unwrap();
+        let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
+        let mv = Move::of_tour(&r.model, &tour, leg, &cfg.trajectory);
+        let rec = simulate(&r, &mv, &cfg).expect("the run completes");
+        let traj = JointTrajectory {
+            names: r.model.joints().iter().map(|j| j.name.clone()).collect(),
+            t: (0..rec.q.len()).map(|i| i as f64 * rec.dt).collect(),
+            q: rec.q.concat(),
+            qd: rec.qd.concat(),
+            tau: rec.tau.concat(),
+        };
+        let ne = NormalEquations::of(&r.model, &traj).unwrap();
+        let e = ne.nrmse(&dynamic_parameters(&r.model));
+        println!("robot {robot} leg {leg}: {e:?}");
+        worst = e.iter().copied().fold(worst, f64::max);
+    }
+    // What the pairing leaves is second order in the step: the state at t_i stands for the span's mean state, an
+    // error of (omega dt)^2 / 24 of the swinging part of the torque, ~1.7e-5 for the ~20 rad/s closed loop (measured:
+    // <= 3e-6). Before the stops were left out and the viscous force paired with the span's mean velocity, these
+    // legs left 1e-4 to 1.8e-3 on some joint.
+    assert!(worst < 2e-5, "worst joint's NRMSE of the true parameters: {worst:e}");
+}
