@@ -70,5 +70,12 @@ fn identify_calibrates_a_wrong_urdf_to_the_logs_of_the_robot() {
     std::fs::write(&renamed, std::fs::read_to_string(&wrong).unwrap().replace("\"joint_1\"", "\"shoulder\"")).unwrap();
     let o = dynforge(&["identify", log, "--urdf", renamed.to_str().unwrap(), "--out", none.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains(log), "{}", stderr(&o));
+    // Logs of two robots, each with its own /robot_description: refused, naming the odd one.
+    let o = dynforge(&["simulate", "--seed", "3", "--robot", "2", "--trajectory", "0", "--out", d]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let other = dir.path().join("r000002-t00-native.mcap");
+    let o = dynforge(&["identify", log, other.to_str().unwrap(), "--out", none.to_str().unwrap()]);
+    let said = stderr(&o);
+    assert!(!o.status.success() && said.contains("r000002-t00-native.mcap is a log of another robot"), "{said}");
     assert!(!none.exists());
 }

@@ -70,6 +70,11 @@ pub enum CalibrateFilesError {
     Read(#[from] ReadError),
     #[error("{file}: {source}")]
     Identify { file: String, source: IdentifyError },
+    #[error(
+        "{file} is a log of another robot than {first} (its /robot_description differs): calibrate one robot at a \
+         time, or give --urdf if they are the same robot described differently"
+    )]
+    OtherRobot { file: String, first: String },
 }
 
 /// A description calibrated to log files (shards or ROS 2 bags) of one robot.
@@ -92,8 +97,19 @@ pub fn calibrate_files(
         let file = file.display().to_string();
         move |source| CalibrateFilesError::Identify { file, source }
     };
+    // Each log read with the URDF given, or else with its own description, which must be the first log's: the sums
+    // of two robots' logs identify neither (it used to write a URDF of that mixture).
+    let given = model.clone();
     for log in logs {
-        let p = read(log, model.as_ref())?;
+        let p = read(log, given.as_ref())?;
+        if let Some(first) = &model
+            && *first != p.model
+        {
+            return Err(CalibrateFilesError::OtherRobot {
+                file: log.display().to_string(),
+                first: logs[0].display().to_string(),
+            });
+        }
         let this = NormalEquations::of(&p.model, &p.trajectory).map_err(fail(log))?;
         match &mut ne {
             Some(sum) => sum.merge(&this),
@@ -147,6 +163,14 @@ impl std::fmt::Display for Calibration {
             "torque NRMSE on the logs: calibrated {:.4}, URDF as given {:.4}, least squares (base parameters) {:.4}",
             self.nrmse_after, self.nrmse_before, self.nrmse_least_squares
         )?;
+        if self.nrmse_after > self.nrmse_before {
+            writeln!(
+                f,
+                "warning: the calibrated robot predicts these logs' torques worse than the URDF as given; the logs \
+                 may be too short or too slow to excite it, or sampled too coarsely for the accelerations (1 kHz is \
+                 what identification is built for): keep the URDF, or record richer motion"
+            )?;
+        }
         for n in &self.projections {
             writeln!(f, "projected: {n}")?;
         }

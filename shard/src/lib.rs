@@ -148,14 +148,15 @@ fn check_data_section(bytes: &[u8]) -> Result<(), String> {
     const FOOTER: usize = 1 + 8 + 8 + 8 + 4;
     const DATA_END: usize = 1 + 8 + 4;
     let u64_at = |at: usize| bytes.get(at..at + 8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
+    // Any offset that does not fit is a malformed file: left to the MCAP reader to report.
     let Some(footer) = bytes.len().checked_sub(MAGIC + FOOTER) else { return Ok(()) };
-    if bytes[footer] != 0x02 {
-        return Ok(()); // no footer where the format puts it: the MCAP reader reports that
+    if bytes.get(footer) != Some(&0x02) {
+        return Ok(());
     }
-    let summary_start = u64_at(footer + 9).unwrap_or(0) as usize;
+    let summary_start = u64_at(footer + 9).and_then(|v| usize::try_from(v).ok()).unwrap_or(0);
     let end = if summary_start == 0 { footer } else { summary_start };
-    let Some(data_end) = end.checked_sub(DATA_END) else { return Ok(()) };
-    if bytes[data_end] != 0x0F || u64_at(data_end + 1) != Some(4) {
+    let Some(data_end) = end.checked_sub(DATA_END).filter(|&d| d + DATA_END <= footer) else { return Ok(()) };
+    if bytes.get(data_end) != Some(&0x0F) || u64_at(data_end + 1) != Some(4) {
         return Ok(());
     }
     let recorded = u32::from_le_bytes(bytes[data_end + 9..data_end + 13].try_into().expect("4 bytes"));

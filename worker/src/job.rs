@@ -99,7 +99,11 @@ impl Runner {
 
     /// Runs a job and writes its shard into `out_dir`.
     pub fn run(&mut self, job: &Job, out_dir: &Path) -> Result<Outcome, JobError> {
-        let Simulated { robot, result } = self.simulate(job)?;
+        let Simulated { robot, result } = match self.simulate(job) {
+            Ok(s) => s,
+            Err(JobError::Model(e)) => return Ok(Outcome::Discarded(Discard::Rejected(e.to_string()))),
+            Err(e) => return Err(e),
+        };
         let (mv, rec) = match result {
             Ok(done) => done,
             Err(d) => return Ok(Outcome::Discarded(d)),

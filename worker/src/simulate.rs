@@ -61,6 +61,10 @@ pub enum Discard {
     Timeout { joint: usize, error: f64 },
     #[error("{0}")]
     Planning(String),
+    /// The generator refused the robot of this seed and id (its configuration allows robots no model can be made
+    /// of): as deterministic as a collision, so recorded once rather than retried on every resume.
+    #[error("the generator rejected the robot: {0}")]
+    Rejected(String),
 }
 
 impl Discard {
@@ -74,6 +78,7 @@ impl Discard {
             Discard::Collision { .. } => "collision",
             Discard::Timeout { .. } => "timeout",
             Discard::Planning(_) => "planning",
+            Discard::Rejected(_) => "rejected",
         }
     }
 }

@@ -76,6 +76,20 @@ fn a_discarded_run_leaves_no_file() {
 }
 
 #[test]
+fn a_robot_the_generator_rejects_is_a_discard_not_a_failure() {
+    // A failure is retried on every resume; a rejection is as deterministic as a collision and must be final.
+    let dir = tempfile::tempdir().unwrap();
+    let mut generator = GeneratorConfig::default();
+    generator.kinematics.axes[2] = [0.0; 3];
+    let outcome = Runner::new(generator, SimConfig::default()).run(&JOB, dir.path()).unwrap();
+    match outcome {
+        Outcome::Discarded(d) => assert_eq!(d.code(), "rejected", "{d}"),
+        other => panic!("expected a discard, got {other:?}"),
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+#[test]
 fn truncated_or_corrupt_shards_are_errors_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let path = written(Runner::new(GeneratorConfig::default(), SimConfig::default()).run(&JOB, dir.path()).unwrap());
