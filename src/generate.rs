@@ -106,16 +106,23 @@ impl Observer for Display {
         let (multi, main, workers) = self.bars.get_or_insert_with(|| {
             let multi = MultiProgress::new();
             let main = multi.add(ProgressBar::new(p.total));
+            // wide_msg: cut to the terminal's width instead of wrapping.
             main.set_style(
-                ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, ETA {eta} | {msg}").expect("valid template"),
+                ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, ETA {eta} | {wide_msg}")
+                    .expect("valid template"),
             );
+            // Jobs an earlier run finished are not progress of this one: the ETA starts from them.
+            main.set_position(p.resumed);
+            main.reset_eta();
             (multi, main, Vec::new())
         });
         main.set_length(p.total);
         main.set_position(p.finished());
         main.set_message(p.to_string());
         while workers.len() < p.slots.len() {
-            workers.push(multi.add(ProgressBar::new_spinner()));
+            let spinner = multi.add(ProgressBar::new_spinner());
+            spinner.enable_steady_tick(Duration::from_millis(200));
+            workers.push(spinner);
         }
         for (k, (bar, job)) in workers.iter().zip(&p.slots).enumerate() {
             bar.set_message(match job {
@@ -141,7 +148,9 @@ impl Drop for Display {
             for w in workers {
                 w.finish_and_clear();
             }
-            main.finish();
+            // Where the run stopped (an interrupted run is not N/N), on a line of its own.
+            main.abandon();
+            eprintln!();
         }
     }
 }

@@ -29,7 +29,8 @@ pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
     if nesting_exceeds(text, MAX_NESTING) {
         return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
     }
-    let robot = urdf_rs::read_from_string(text).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
+    let robot = urdf_rs::read_from_string(text)
+        .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
     build(&robot, source_name)
 }
 
@@ -76,6 +77,40 @@ fn nesting_exceeds(text: &str, max: usize) -> bool {
         }
     }
     false
+}
+
+/// Where a number attribute of the URDF is not one: the XML reader's own error ("invalid float literal") names no
+/// element or line. Only the attributes dynforge reads as numbers are looked at.
+fn bad_number(text: &str) -> Option<String> {
+    const NUMERIC: [(&str, &[&str]); 6] = [
+        ("mass", &["value"]),
+        ("inertia", &["ixx", "ixy", "ixz", "iyy", "iyz", "izz"]),
+        ("origin", &["xyz", "rpy"]),
+        ("axis", &["xyz"]),
+        ("limit", &["lower", "upper", "effort", "velocity"]),
+        ("dynamics", &["damping", "friction"]),
+    ];
+    for (line_no, line) in text.lines().enumerate() {
+        for tag in line.split('<').skip(1) {
+            let tag = tag.split('>').next().unwrap_or(tag);
+            let name = tag.split_whitespace().next().unwrap_or("");
+            let Some((_, attrs)) = NUMERIC.iter().find(|(n, _)| *n == name) else { continue };
+            for attr in attrs.iter() {
+                for quote in ['"', '\''] {
+                    let key = format!("{attr}={quote}");
+                    let Some(start) = tag.find(&key).map(|i| i + key.len()) else { continue };
+                    let value = tag[start..].split(quote).next().unwrap_or("");
+                    if let Some(bad) = value.split_whitespace().find(|v| v.parse::<f64>().is_err()) {
+                        return Some(format!(
+                            "line {}: <{name} {attr}=\"{value}\">: '{bad}' is not a number",
+                            line_no + 1
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    None
 }
 
 fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError> {

@@ -120,6 +120,13 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
 
     assert_eq!(problem("<robot name='x'><link name='base'/></robot>").1, ModelProblem::NoMovingJoint);
 
+    // A number that is not one names its element and line (the XML reader's error named neither).
+    let (msg, _) = problem(&format!(
+        "<robot name='x'>\n<link name='base'/>\n{}{j0}</robot>",
+        l1.replacen("value=\"1\"", "value=\"abc\"", 1)
+    ));
+    assert!(msg.contains("line 3: <mass value=\"abc\">: 'abc' is not a number"), "{msg}");
+
     // Two joints of one name (the second a fixed tool joint, so the chain itself is valid).
     let (msg, p) = problem(&format!(
         "<robot name='x'><link name='base'/>{l1}<link name='tool'/>{j0}<joint name='j0' type='fixed'><parent link='l1'/><child link='tool'/></joint></robot>"

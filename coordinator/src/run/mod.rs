@@ -222,6 +222,8 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
         }
         if last_status.elapsed() >= STATUS_TICK {
             last_status = Instant::now();
+            // Freed workers get their next job before the snapshot: otherwise the pool looks half idle.
+            run.dispatch()?;
             run.publish(observer);
         }
     }
