@@ -22,7 +22,7 @@ fn cache_hits_misses_and_rebuilds() {
     let features = JacobianFeatures::new(&robot.model);
     let spec = WindowSpec::default();
 
-    let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap();
+    let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
     assert!(!built.hit && skipped.is_empty());
     assert!(built.count() >= 2);
     assert_eq!(built.data.len(), built.count() * spec.len * built.width);
@@ -33,13 +33,13 @@ fn cache_hits_misses_and_rebuilds() {
 
     // Ledger lines in another order are the same dataset; an extra record is not.
     std::fs::write(dir.path().join("ledger.tsv"), "a\nb\n").unwrap();
-    assert!(load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+    assert!(load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
     std::fs::write(dir.path().join("ledger.tsv"), "a\nb\nc\n").unwrap();
-    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 
     // Another geometry misses.
     let other = WindowSpec { len: 32, stride: 64, ssr: 16 };
-    let (w, _) = load_or_build(dir.path(), &other, &features, |_, _| {}).unwrap();
+    let (w, _) = load_or_build(dir.path(), &other, &features, |_, _| true).unwrap();
     assert!(!w.hit && w.count() > built.count());
 
     // A damaged cache file fails its checksum and is rebuilt to the same content.
@@ -48,12 +48,12 @@ fn cache_hits_misses_and_rebuilds() {
     let mid = bytes.len() / 2;
     bytes[mid] ^= 1;
     std::fs::write(&path, &bytes).unwrap();
-    let (rebuilt, _) = load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap();
+    let (rebuilt, _) = load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
     assert!(!rebuilt.hit);
     assert_eq!(CachedEq(&rebuilt), CachedEq(&built));
     // A truncated file (a crash before the atomic rename cannot produce one, a disk error can) is rebuilt too.
     std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
-    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| {}).unwrap().0.hit);
+    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 }
 
 /// Equality of the cached content, ignoring whether it came from disk.
@@ -88,10 +88,10 @@ fn shards_read_on_all_cores_join_in_path_order() {
         hit: false,
     };
     let mut together = empty();
-    let added = together.add_shards(&paths, &features, |_, _| {});
+    let added = together.add_shards(&paths, &features, |_, _| true);
     let mut one_by_one = empty();
     for p in &paths {
-        one_by_one.add_shards(std::slice::from_ref(p), &features, |_, _| {});
+        one_by_one.add_shards(std::slice::from_ref(p), &features, |_, _| true);
     }
     assert_eq!(CachedEq(&together), CachedEq(&one_by_one));
     // Each shard's reported range holds its own robot's windows, and the robots follow the (sorted) file names.
@@ -101,4 +101,18 @@ fn shards_read_on_all_cores_join_in_path_order() {
         let (robot, range) = a.as_ref().unwrap();
         assert!(!range.is_empty() && together.robots[range.clone()].iter().all(|r| r == robot));
     }
+}
+
+#[test]
+fn an_interrupted_build_is_an_error_and_caches_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let shards = dir.path().join("shards");
+    std::fs::create_dir_all(&shards).unwrap();
+    let (_, robot) = write_shard(&Job { seed: 5, robot: 1, trajectory: 0 }, &shards);
+    std::fs::write(dir.path().join("manifest.toml"), "seed = 5\n").unwrap();
+    std::fs::write(dir.path().join("ledger.tsv"), "a\n").unwrap();
+    let (spec, features) = (WindowSpec::default(), JacobianFeatures::new(&robot.model));
+    let e = load_or_build(dir.path(), &spec, &features, |_, _| false).err().expect("stopped");
+    assert!(e.to_string().contains("interrupted while reading the shards; nothing was cached"), "{e}");
+    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit, "a partial cache was written");
 }

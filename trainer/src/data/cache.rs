@@ -41,23 +41,27 @@ impl CachedWindows {
     /// Appends the windows of the dataset shards `paths`, in their order; for each shard, its robot and the
     /// indices of its new windows, or why it was skipped (unreadable, not a dataset shard, or another row width
     /// than the windows held). Shards are read and windowed on all cores, a chunk at a time, and appended in
-    /// order, so the result is the same as reading them one by one. `progress(done, total)` after each chunk.
+    /// order, so the result is the same as reading them one by one. `progress(done, total)` before each chunk and at the
+    /// end; `false` stops before the next chunk (the result then has fewer entries than `paths`).
     pub fn add_shards(
         &mut self,
         paths: &[PathBuf],
         features: &JacobianFeatures,
-        mut progress: impl FnMut(usize, usize),
+        mut progress: impl FnMut(usize, usize) -> bool,
     ) -> Vec<Result<(u64, std::ops::Range<usize>), String>> {
         let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
         let spec = self.spec;
         let mut out = Vec::with_capacity(paths.len());
         for chunk in paths.chunks(16 * threads) {
+            if !progress(out.len(), paths.len()) {
+                return out;
+            }
             let read = crate::parallel::map_in_order(chunk, |p| read_shard(p, &spec, features));
             for (p, r) in chunk.iter().zip(read) {
                 out.push(r.and_then(|w| self.append(p, w)));
             }
-            progress(out.len(), paths.len());
         }
+        progress(out.len(), paths.len());
         out
     }
 
@@ -141,12 +145,13 @@ pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) ->
 }
 
 /// The windows of every shard of the `generate` directory `dir`: from the cache if it is current, else built
-/// (calling `progress(done, total)` per shard) and cached. Shards that cannot be read are skipped and returned.
+/// (calling `progress(done, total)` per group of shards; `false` stops, an error, with nothing cached) and cached.
+/// Shards that cannot be read are skipped and returned.
 pub fn load_or_build(
     dir: &Path,
     spec: &WindowSpec,
     features: &JacobianFeatures,
-    mut progress: impl FnMut(usize, usize),
+    mut progress: impl FnMut(usize, usize) -> bool,
 ) -> Result<(CachedWindows, Vec<String>), ReadError> {
     let path = cache_path(dir, spec, features)?;
     if let Some(w) = std::fs::read(&path).ok().and_then(|b| decode(&b)) {
@@ -160,7 +165,12 @@ pub fn load_or_build(
     let paths = list_shards(&shards).map_err(io(&shards))?;
     let mut out =
         CachedWindows { spec: *spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
-    let skipped = out.add_shards(&paths, features, &mut progress).into_iter().filter_map(Result::err).collect();
+    let added = out.add_shards(&paths, features, &mut progress);
+    if added.len() < paths.len() {
+        let problem = "interrupted while reading the shards; nothing was cached".to_string();
+        return Err(ReadError::Content { file: dir.display().to_string(), problem });
+    }
+    let skipped = added.into_iter().filter_map(Result::err).collect();
     let cache_dir = dir.join(CACHE);
     std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
     dynforge_proto::run_dir::write_atomic(&path, &encode(&out)).map_err(io(&path))?;

@@ -63,6 +63,8 @@ pub enum PhysicsError {
     Identify { file: String, source: IdentifyError },
     #[error("the generator's parameter prior: {0}")]
     Generator(String),
+    #[error("{0}: interrupted while computing the physics of the shards; nothing was cached")]
+    Interrupted(String),
 }
 
 /// The parameter prior of the generator `cfg`: [`PRIOR_ROBOTS`] robots drawn beside the dataset of seed `seed`.
@@ -248,13 +250,13 @@ fn preprocessing(spec: &WindowSpec, prior: &ParameterPrior) -> Vec<u8> {
 }
 
 /// The physics of every shard of the `generate` directory `dir`: from its cache if current, else computed on all
-/// cores (calling `progress(done, total)`) and cached. Shards that cannot be read, or are not dataset shards, are
+/// cores (calling `progress(done, total)`; `false` stops, an error, with nothing cached) and cached. Shards that cannot be read, or are not dataset shards, are
 /// skipped and returned with the reason.
 pub fn load_or_build(
     dir: &Path,
     spec: &WindowSpec,
     prior: &ParameterPrior,
-    mut progress: impl FnMut(usize, usize),
+    mut progress: impl FnMut(usize, usize) -> bool,
 ) -> Result<(PhysicsSet, Vec<String>), PhysicsError> {
     let path = dir.join(CACHE).join(format!("physics-{:016x}.bin", dataset_key(dir, &preprocessing(spec, prior))?));
     if let Some(set) = std::fs::read(&path).ok().and_then(|b| PhysicsSet::decode(&b)) {
@@ -268,6 +270,9 @@ pub fn load_or_build(
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut done = 0;
     for chunk in paths.chunks(8 * threads) {
+        if !progress(done, paths.len()) {
+            return Err(PhysicsError::Interrupted(dir.display().to_string()));
+        }
         let results = crate::parallel::map_in_order(chunk, |p| -> Result<_, String> {
             let rec = read(p, None).map_err(|e| e.to_string())?;
             let (Some(labels), Some(robot)) = (rec.labels, rec.robot) else {
@@ -283,8 +288,8 @@ pub fn load_or_build(
             }
         }
         done += chunk.len();
-        progress(done, paths.len());
     }
+    progress(done, paths.len());
     let cache = dir.join(CACHE);
     std::fs::create_dir_all(&cache).map_err(|e| io(&cache, e))?;
     dynforge_proto::run_dir::write_atomic(&path, &set.encode()).map_err(|e| io(&path, e))?;

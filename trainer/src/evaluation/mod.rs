@@ -163,16 +163,22 @@ fn validate(
         Some(i) => i,
         None => match c.parameter_prior() {
             Some(prior) => Inputs::Physics(
-                physics::load_or_build(data, &spec, &prior, |k, n| progress("physics", k, n))
-                    .map_err(|e| InferenceError::Recording {
-                        file: data.display().to_string(),
-                        problem: e.to_string(),
-                    })?
-                    .0,
+                physics::load_or_build(data, &spec, &prior, |k, n| {
+                    progress("physics", k, n);
+                    true
+                })
+                .map_err(|e| InferenceError::Recording { file: data.display().to_string(), problem: e.to_string() })?
+                .0,
             ),
             None => {
                 let features = JacobianFeatures::new(&dataset_robot(data)?);
-                Inputs::Windows(load_or_build(data, &spec, &features, |k, n| progress("windows", k, n))?.0)
+                Inputs::Windows(
+                    load_or_build(data, &spec, &features, |k, n| {
+                        progress("windows", k, n);
+                        true
+                    })?
+                    .0,
+                )
             }
         },
     };

@@ -28,7 +28,7 @@ impl Corpus {
         validation_fraction: f64,
     ) -> Vec<String> {
         let mut skipped = Vec::new();
-        for added in self.windows.add_shards(paths, features, |_, _| {}) {
+        for added in self.windows.add_shards(paths, features, |_, _| true) {
             match added {
                 Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
                     Split::Train => self.train.extend(new),

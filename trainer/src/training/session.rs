@@ -236,8 +236,10 @@ impl Session<'_> {
         } else {
             let robot = dataset_robot(self.data)?;
             let features = JacobianFeatures::new(&robot);
-            let (w, skipped) =
-                load_or_build(self.data, &spec, &features, |k, n| observer.preprocessing("windows", k, n))?;
+            let (w, skipped) = load_or_build(self.data, &spec, &features, |k, n| {
+                observer.preprocessing("windows", k, n);
+                !self.stop.load(Ordering::Relaxed)
+            })?;
             skip(observer, &skipped);
             observer.message(&format!(
                 "{} windows of {} x {} values ({})",
@@ -343,8 +345,10 @@ impl Session<'_> {
                 physics::generator_prior(&generator_cfg, seed)?
             }
         };
-        let (set, skipped) =
-            physics::load_or_build(self.data, &spec, &prior, |k, n| observer.preprocessing("physics", k, n))?;
+        let (set, skipped) = physics::load_or_build(self.data, &spec, &prior, |k, n| {
+            observer.preprocessing("physics", k, n);
+            !self.stop.load(Ordering::Relaxed)
+        })?;
         skip(observer, &skipped);
         observer.message(&format!(
             "physics of {} windows and {} recordings in {} prior coordinates ({})",
