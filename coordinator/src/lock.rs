@@ -19,6 +19,9 @@ use std::time::{Duration, Instant};
 /// The lock file's name in the run directory.
 pub const LOCK: &str = "lock";
 
+/// How long a refused process waits for the holder's description (written right after it takes the lock).
+const DESCRIPTION_WAIT: Duration = Duration::from_millis(500);
+
 #[derive(Debug, thiserror::Error)]
 pub enum LockError {
     #[error("{dir}: another generate is using this directory ({holder}); wait for it or stop it first")]
@@ -44,15 +47,20 @@ impl RunLock {
         std::fs::create_dir_all(dir).map_err(io)?;
         let mut file =
             OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path).map_err(io)?;
-        let deadline = Instant::now() + wait;
+        let start = Instant::now();
         loop {
             match file.try_lock() {
                 Ok(()) => break,
-                Err(TryLockError::WouldBlock) if Instant::now() < deadline && holder_is_gone(&describe(&mut file)) => {
-                    std::thread::sleep(Duration::from_millis(20))
-                }
                 Err(TryLockError::WouldBlock) => {
-                    return Err(LockError::Busy { dir: dir.display().to_string(), holder: describe(&mut file) });
+                    // A holder that has just taken the lock writes who it is a moment later.
+                    let holder = describe(&mut file);
+                    let unwritten = holder.is_none() && start.elapsed() < DESCRIPTION_WAIT;
+                    let gone = holder.as_deref().is_some_and(holder_is_gone) && start.elapsed() < wait;
+                    if !(unwritten || gone) {
+                        let holder = holder.unwrap_or_else(|| "holder unknown".into());
+                        return Err(LockError::Busy { dir: dir.display().to_string(), holder });
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
                 }
                 Err(TryLockError::Error(e)) => return Err(io(e)),
             }
@@ -79,7 +87,7 @@ pub fn holder(dir: &Path) -> Option<String> {
     let mut file = OpenOptions::new().read(true).write(true).open(dir.join(LOCK)).ok()?;
     match file.try_lock() {
         Ok(()) => None,
-        Err(TryLockError::WouldBlock) => Some(describe(&mut file)),
+        Err(TryLockError::WouldBlock) => Some(describe(&mut file).unwrap_or_else(|| "holder unknown".into())),
         Err(TryLockError::Error(_)) => None,
     }
 }
@@ -103,11 +111,12 @@ fn holder_is_gone(description: &str) -> bool {
     }
 }
 
-fn describe(file: &mut File) -> String {
+/// The holder's description in the lock file, if written yet.
+fn describe(file: &mut File) -> Option<String> {
     let mut text = String::new();
     let _ = file.rewind().and_then(|()| file.read_to_string(&mut text));
     match text.trim() {
-        "" => "holder unknown".into(),
-        t => t.chars().take(200).collect(),
+        "" => None,
+        t => Some(t.chars().take(200).collect()),
     }
 }
