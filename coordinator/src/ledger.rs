@@ -8,11 +8,13 @@
 //! middle of a write) is dropped and cut off when the ledger is reopened for writing; a corrupt line anywhere else
 //! is an error naming the file and line, and nothing is changed.
 
+use std::collections::BTreeMap;
 use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use dynforge_shard::content_hash;
+use dynforge_worker::job::{Job, shard_name};
 
 /// How a job ended.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -107,6 +109,23 @@ fn parse_all(text: &str, path: &Path) -> Result<(Vec<Entry>, usize), LedgerError
         }
     }
     Ok((entries, valid))
+}
+
+impl Entry {
+    /// The job this line records, in the run of dataset seed `seed`.
+    pub fn job(&self, seed: u64) -> Job {
+        Job { seed, robot: self.robot, trajectory: self.trajectory }
+    }
+
+    /// The file name of the job's shard (`engine` from the run's manifest).
+    pub fn shard_name(&self, seed: u64, engine: &str) -> String {
+        shard_name(&self.job(seed), engine)
+    }
+}
+
+/// Each job's record that counts: its last one (a failed attempt followed by the rerun that succeeded is the rerun).
+pub fn latest(entries: &[Entry]) -> BTreeMap<u64, &Entry> {
+    entries.iter().map(|e| (e.job_id, e)).collect()
 }
 
 /// Reads a ledger without changing it (for `status` and `verify`). A missing file is an empty ledger.

@@ -13,7 +13,7 @@
 
 use std::fs::{File, OpenOptions, TryLockError};
 use std::io::{Read, Seek, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// The lock file's name in the run directory.
@@ -34,7 +34,6 @@ pub enum LockError {
 #[derive(Debug)]
 pub struct RunLock {
     file: File,
-    path: PathBuf,
 }
 
 impl RunLock {
@@ -68,17 +67,13 @@ impl RunLock {
         // Who holds it, for the message of anyone refused. Not synced: it is a courtesy, the lock is the flock.
         let holder = format!("pid {} on {}", std::process::id(), hostname());
         file.set_len(0).and_then(|()| file.rewind()).and_then(|()| file.write_all(holder.as_bytes())).map_err(io)?;
-        Ok(RunLock { file, path })
+        Ok(RunLock { file })
     }
 
     /// The lock's file descriptor, for worker processes to inherit.
     pub fn fd(&self) -> std::os::fd::RawFd {
         use std::os::fd::AsRawFd;
         self.file.as_raw_fd()
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
     }
 }
 

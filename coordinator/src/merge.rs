@@ -10,7 +10,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::run_dir::{LEDGER, SHARDS};
-use dynforge_worker::job::{Job, shard_name};
 
 use crate::ledger::{self, Status};
 use crate::lock::RunLock;
@@ -122,12 +121,10 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     let engine = first.sim.engine.name();
     let mut merged = Merged { partitions: parts.len(), ..Merged::default() };
     for dir in by_index.values() {
-        // The latest record of each job (a failed attempt followed by its rerun keeps the rerun).
         let entries = ledger::read(&dir.join(LEDGER))?;
-        let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
-        for e in latest.values() {
+        for e in ledger::latest(&entries).values() {
             if let Status::Done { .. } = e.status {
-                let name = shard_name(&Job { seed: first.seed, robot: e.robot, trajectory: e.trajectory }, engine);
+                let name = e.shard_name(first.seed, engine);
                 let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
                 if std::fs::hard_link(&from, &to).is_err() {
                     std::fs::copy(&from, &to).map_err(|e| io(&from, e))?;

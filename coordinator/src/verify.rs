@@ -120,12 +120,11 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
             .map(|j| (plan::job_id(&j, manifest.trajectories), j))
             .collect();
     report.planned = planned.len();
-    // Last entry wins: a failed job gets a second entry when a resume runs it again.
-    let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let latest = ledger::latest(&entries);
     let mut expected_files = BTreeSet::new();
     let total = latest.len();
     for (k, (id, e)) in latest.iter().enumerate() {
-        let job = Job { seed: manifest.seed, robot: e.robot, trajectory: e.trajectory };
+        let job = e.job(manifest.seed);
         match &e.status {
             Status::Done { samples, shard_hash } => {
                 report.done += 1;
@@ -180,13 +179,13 @@ pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let (mut ledger, entries) = ledger::Ledger::open(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();
-    let latest: BTreeMap<u64, &ledger::Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let latest = ledger::latest(&entries);
     let corrupt: BTreeMap<&str, &str> = report.corrupt.iter().map(|(n, why)| (n.as_str(), why.as_str())).collect();
     let quarantine = dir.join(QUARANTINE);
     let io = |path: &Path, source| VerifyError::Io { path: path.display().to_string(), source };
     let mut marked = 0;
     for e in latest.values().filter(|e| matches!(e.status, Status::Done { .. })) {
-        let name = shard_name(&Job { seed: manifest.seed, robot: e.robot, trajectory: e.trajectory }, engine);
+        let name = e.shard_name(manifest.seed, engine);
         let message = if report.missing.contains(&name) {
             "shard missing (found by verify)".to_string()
         } else if let Some(why) = corrupt.get(name.as_str()) {

@@ -9,18 +9,22 @@ use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
 use dynforge_worker::job::Job;
 
+/// A run directory with `trajectories` shards of robot 1 of seed 5, a manifest and a ledger (the cache key reads
+/// both as bytes); the default window geometry and the robot's features.
+fn run_dir(dir: &std::path::Path, trajectories: u32) -> (WindowSpec, JacobianFeatures) {
+    let shards = dir.join("shards");
+    std::fs::create_dir_all(&shards).unwrap();
+    let robots: Vec<_> =
+        (0..trajectories).map(|t| write_shard(&Job { seed: 5, robot: 1, trajectory: t }, &shards).1).collect();
+    std::fs::write(dir.join("manifest.toml"), "seed = 5\n").unwrap();
+    std::fs::write(dir.join("ledger.tsv"), "b\na\n").unwrap();
+    (WindowSpec::default(), JacobianFeatures::new(&robots[0].model))
+}
+
 #[test]
 fn cache_hits_misses_and_rebuilds() {
     let dir = tempfile::tempdir().unwrap();
-    let shards = dir.path().join("shards");
-    std::fs::create_dir_all(&shards).unwrap();
-    let (_, robot) = write_shard(&Job { seed: 5, robot: 1, trajectory: 0 }, &shards);
-    write_shard(&Job { seed: 5, robot: 1, trajectory: 1 }, &shards);
-    // The cache key reads the run's manifest and ledger as bytes.
-    std::fs::write(dir.path().join("manifest.toml"), "seed = 5\n").unwrap();
-    std::fs::write(dir.path().join("ledger.tsv"), "b\na\n").unwrap();
-    let features = JacobianFeatures::new(&robot.model);
-    let spec = WindowSpec::default();
+    let (spec, features) = run_dir(dir.path(), 2);
 
     let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
     assert!(!built.hit && skipped.is_empty());
@@ -106,12 +110,7 @@ fn shards_read_on_all_cores_join_in_path_order() {
 #[test]
 fn an_interrupted_build_is_an_error_and_caches_nothing() {
     let dir = tempfile::tempdir().unwrap();
-    let shards = dir.path().join("shards");
-    std::fs::create_dir_all(&shards).unwrap();
-    let (_, robot) = write_shard(&Job { seed: 5, robot: 1, trajectory: 0 }, &shards);
-    std::fs::write(dir.path().join("manifest.toml"), "seed = 5\n").unwrap();
-    std::fs::write(dir.path().join("ledger.tsv"), "a\n").unwrap();
-    let (spec, features) = (WindowSpec::default(), JacobianFeatures::new(&robot.model));
+    let (spec, features) = run_dir(dir.path(), 1);
     let e = load_or_build(dir.path(), &spec, &features, |_, _| false).err().expect("stopped");
     assert!(e.to_string().contains("interrupted while reading the shards; nothing was cached"), "{e}");
     assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit, "a partial cache was written");

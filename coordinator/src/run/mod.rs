@@ -8,7 +8,7 @@ mod liveness;
 mod processes;
 mod status;
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use dynforge_ipc::{Coordinator, IpcError, RunId};
 use dynforge_proto::run_dir::{LEDGER, LOGS, MANIFEST, SHARDS, is_temporary};
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::{Job, shard_name};
+use dynforge_worker::job::Job;
 use dynforge_worker::simulate::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
@@ -150,10 +150,10 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     // A job's latest entry counts. Done and discarded are final (a discard is a property of the robot and its
     // trajectory); a failure (a killed or hung worker, a full disk, an unwritable directory) says nothing about the
     // job, so a resume runs it again.
-    let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
+    let latest = crate::ledger::latest(&entries);
     let failed = |e: &Entry| matches!(e.status, Status::Failed { .. });
     let retried = latest.values().filter(|e| failed(e)).count();
-    let mut finished: HashMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
+    let mut finished: BTreeMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
     if retried > 0 {
         observer.message(&format!("retrying {retried} job(s) that failed in an earlier run"));
     }
@@ -163,8 +163,8 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     let lost: Vec<u64> = finished
         .iter()
         .filter(|(_, e)| {
-            let job = Job { seed: cfg.seed, robot: e.robot, trajectory: e.trajectory };
-            matches!(e.status, Status::Done { .. }) && !shards.join(shard_name(&job, cfg.sim.engine.name())).exists()
+            matches!(e.status, Status::Done { .. })
+                && !shards.join(e.shard_name(cfg.seed, cfg.sim.engine.name())).exists()
         })
         .map(|(id, _)| *id)
         .collect();

@@ -1,7 +1,7 @@
 //! How a run goes: counts by outcome for displays ([`Observer`]) and the live record monitors read
 //! (`dynforge status`, over iceoryx2's status service).
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
 use dynforge_ipc::StatusMsg;
 use dynforge_worker::job::Job;
@@ -50,9 +50,8 @@ impl Progress {
 
     /// Counts of a ledger's records (the last record of a job wins) for a run of `total` jobs.
     pub fn from_ledger(total: u64, entries: &[Entry]) -> Progress {
-        let latest: HashMap<u64, &Entry> = entries.iter().map(|e| (e.job_id, e)).collect();
         let mut p = Progress { total, ..Progress::default() };
-        for e in latest.values() {
+        for e in crate::ledger::latest(entries).values() {
             p.record(&e.status);
         }
         p
