@@ -25,7 +25,10 @@ pub enum MergeError {
     Partition { dir: String, problem: String },
     #[error("the partitions do not make one run: {0}")]
     Set(String),
-    #[error("{0}: the output directory must be new or empty")]
+    #[error(
+        "{0}: the output directory must be new or empty (a merge that was interrupted leaves one without \
+         manifest.toml: delete it and merge again; the partitions are untouched)"
+    )]
     OutputNotEmpty(String),
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
