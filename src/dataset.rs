@@ -1,4 +1,5 @@
-//! `dynforge dataset stats`: what a dataset holds and how many windows each preprocessing geometry makes of it.
+//! `dynforge dataset`: what a dataset holds and how many windows each preprocessing geometry makes of it (`stats`);
+//! its training cache built ahead of training, and its shards pruned once cached (`prepare`).
 
 use std::path::PathBuf;
 
@@ -7,11 +8,33 @@ use clap::{Args, Subcommand};
 use dynforge_trainer::data::dataset::stats;
 use dynforge_trainer::data::features::JacobianFeatures;
 use dynforge_trainer::data::window::WindowSpec;
+use dynforge_trainer::training::session::{self, ModelKind};
+
+use crate::progress::{Bars, STOP, catch_interrupts};
 
 #[derive(Subcommand)]
 pub enum DatasetCommand {
     /// Robots, trajectories, hours of motion, windows per configuration and label ranges of a dataset.
     Stats(StatsArgs),
+    /// Build the cache `train` reads (physics or windows) without training; with --prune, then delete the shards,
+    /// whose data the cache holds (bounded disk: generate, prepare --prune and merge a run partition by partition).
+    Prepare(PrepareArgs),
+}
+
+#[derive(Args)]
+pub struct PrepareArgs {
+    /// A finished `dynforge generate` directory (or partition).
+    dir: PathBuf,
+    /// The estimator whose cache to build.
+    #[arg(long, value_enum, default_value = "physics")]
+    model: ModelKind,
+    /// Window geometry, as `train` takes it.
+    #[arg(long = "window", value_name = "LEN:STRIDE:SSR", default_value = "64:64:16")]
+    window: String,
+    /// Then delete the shards (recorded in DIR/pruned.txt): `train` with these settings, `merge` and `verify` still
+    /// work; other settings, the torque and identification checks need shards.
+    #[arg(long)]
+    prune: bool,
 }
 
 #[derive(Args)]
@@ -49,8 +72,36 @@ fn parse_spec(s: &str) -> Result<WindowSpec> {
     }
 }
 
+fn prepare(args: PrepareArgs) -> Result<()> {
+    let spec = parse_spec(&args.window)?;
+    catch_interrupts();
+    let build = || {
+        let mut bars = Bars::new(1);
+        session::prepare(&args.dir, args.model, &spec, &STOP, &mut bars)
+    };
+    let held = if args.prune {
+        let mut held = String::new();
+        let pruned = dynforge_coordinator::prune::prune(
+            &args.dir,
+            |_, _| {},
+            || {
+                held = build().map_err(|e| e.to_string())?;
+                Ok(())
+            },
+        )?;
+        format!("{held}; {pruned} shards pruned")
+    } else {
+        build()?
+    };
+    println!("{}: {held}", args.dir.display());
+    Ok(())
+}
+
 pub fn run(cmd: DatasetCommand) -> Result<()> {
-    let DatasetCommand::Stats(args) = cmd;
+    let args = match cmd {
+        DatasetCommand::Stats(args) => args,
+        DatasetCommand::Prepare(args) => return prepare(args),
+    };
     let specs: Vec<WindowSpec> = if args.windows.is_empty() {
         [(32, 64, 16), (64, 32, 16), (64, 64, 16), (64, 64, 8), (128, 64, 16)]
             .map(|(len, stride, ssr)| WindowSpec { len, stride, ssr })

@@ -234,7 +234,8 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
             if report.missing.is_empty() && report.corrupt.is_empty() { "" } else { " (`--repair` redoes them)" };
         bail!("{} missing, {} extra, {} corrupt{hint}", report.missing.len(), report.extra.len(), report.corrupt.len());
     }
-    println!("ok: every recorded shard is present and intact");
+    let pruned = if report.pruned > 0 { " (or pruned, its data cached)" } else { "" };
+    println!("ok: every recorded shard is present{pruned} and intact");
     if report.failed > 0 {
         bail!("incomplete: {} job(s) failed; rerun the same `generate` command to retry them", report.failed);
     }
@@ -243,19 +244,33 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
 
 pub fn merge(args: MergeArgs) -> Result<()> {
     let bar = if std::io::stderr().is_terminal() { ProgressBar::new(0) } else { ProgressBar::hidden() };
-    let merged = dynforge_coordinator::merge::merge(&args.parts, &args.out, |k, n| {
-        bar.set_length(n as u64);
-        bar.set_position(k as u64);
-    })?;
+    // Which caches the partitions share (an error now, before anything is written, if pruned data would be lost).
+    let caches = dynforge_trainer::data::partitions::plan(&args.parts).map_err(anyhow::Error::msg)?;
+    let mut combined = Vec::new();
+    let merged = dynforge_coordinator::merge::merge(
+        &args.parts,
+        &args.out,
+        |k, n| {
+            bar.set_length(n as u64);
+            bar.set_position(k as u64);
+        },
+        |manifest| {
+            combined = caches.combine(&args.parts, &args.out, manifest)?;
+            Ok(())
+        },
+    )?;
     bar.finish_and_clear();
     println!(
-        "{}: merged {} partitions: {} shards ({} hard-linked, {} copied), {} ledger records",
+        "{}: merged {} partitions: {} shards ({} hard-linked, {} copied, {} pruned), {} ledger records, {} caches \
+         combined",
         args.out.display(),
         merged.partitions,
-        merged.shards,
+        merged.shards + merged.pruned,
         merged.shards - merged.copied,
         merged.copied,
-        merged.ledger_entries
+        merged.pruned,
+        merged.ledger_entries,
+        combined.len()
     );
     Ok(())
 }

@@ -48,9 +48,52 @@ fn a_slurm_job_array_of_three_partitions_merges_into_the_single_host_dataset_and
 
     let root = tempfile::tempdir().unwrap();
     let train = "--epochs 1 --generated 1024 --dim 32 --validation 0.34";
+    let ids = submit_and_wait(root.path(), &["--train", train], &generate);
+    let merged = root.path().join("merged");
+    let log = std::fs::read_to_string(root.path().join(format!("dynforge-merge-{}.log", ids[1]))).unwrap_or_default();
+    assert!(
+        log.contains("merged 3 partitions: 12 shards (12 hard-linked, 0 copied, 0 pruned)"),
+        "merge job log:\n{log}"
+    );
+    assert_eq!(shard_hashes(&merged), shard_hashes(single.path()), "byte-identical shards");
+    assert_eq!(
+        std::fs::read(merged.join("manifest.toml")).unwrap(),
+        std::fs::read(single.path().join("manifest.toml")).unwrap(),
+        "the single host's manifest"
+    );
+    assert_eq!(ledger_set(&merged), ledger_set(single.path()), "the same ledger records");
+    assert!(root.path().join("model/checkpoint.json").is_file(), "the merge job trained:\n{log}");
+
+    // Bounded disk: each task caches its partition and deletes the shards; the merge combines the caches into the
+    // single host's, and trains the same weights.
+    let pruned = tempfile::tempdir().unwrap();
+    let ids = submit_and_wait(pruned.path(), &["--train", train, "--prune"], &generate);
+    let merged = pruned.path().join("merged");
+    let log = std::fs::read_to_string(pruned.path().join(format!("dynforge-merge-{}.log", ids[1]))).unwrap_or_default();
+    assert!(log.contains("12 shards (0 hard-linked, 0 copied, 12 pruned)"), "merge job log:\n{log}");
+    assert!(shard_hashes(&merged).is_empty());
+    assert!(dynforge(&["dataset", "prepare", single.path().to_str().unwrap()]).status.success());
+    let cache = |d: &Path| {
+        let mut files: Vec<(String, Vec<u8>)> = std::fs::read_dir(d.join("cache"))
+            .unwrap()
+            .map(|e| e.unwrap())
+            .map(|e| (e.file_name().to_string_lossy().to_string(), std::fs::read(e.path()).unwrap()))
+            .collect();
+        files.sort();
+        files
+    };
+    assert!(cache(&merged) == cache(single.path()), "the combined cache differs from the single host's");
+    let weights = |d: &Path| std::fs::read(d.join("model/model.safetensors")).unwrap();
+    assert!(weights(pruned.path()) == weights(root.path()), "other weights from the same data:\n{log}");
+}
+
+/// Submits `deploy/slurm/submit.sh` (3 partitions into `root`, `options`, then `generate` flags) and waits for its
+/// jobs; returns the two job ids (array, merge).
+fn submit_and_wait(root: &Path, options: &[&str], generate: &[&str]) -> Vec<String> {
     let submit = Command::new(repo().join("deploy/slurm/submit.sh"))
-        .args(["--root", root.path().to_str().unwrap(), "--partitions", "3", "--cpus", "1", "--dynforge", EXE])
-        .args(["--train", train, "--"])
+        .args(["--root", root.to_str().unwrap(), "--partitions", "3", "--cpus", "1", "--dynforge", EXE])
+        .args(options)
+        .arg("--")
         .args(generate)
         .output()
         .unwrap();
@@ -74,18 +117,7 @@ fn a_slurm_job_array_of_three_partitions_merges_into_the_single_host_dataset_and
         );
         std::thread::sleep(Duration::from_millis(500));
     }
-
-    let merged = root.path().join("merged");
-    let log = std::fs::read_to_string(root.path().join(format!("dynforge-merge-{}.log", ids[1]))).unwrap_or_default();
-    assert!(log.contains("merged 3 partitions: 12 shards (12 hard-linked, 0 copied)"), "merge job log:\n{log}");
-    assert_eq!(shard_hashes(&merged), shard_hashes(single.path()), "byte-identical shards");
-    assert_eq!(
-        std::fs::read(merged.join("manifest.toml")).unwrap(),
-        std::fs::read(single.path().join("manifest.toml")).unwrap(),
-        "the single host's manifest"
-    );
-    assert_eq!(ledger_set(&merged), ledger_set(single.path()), "the same ledger records");
-    assert!(root.path().join("model/checkpoint.json").is_file(), "the merge job trained:\n{log}");
+    ids
 }
 
 /// Renders `deploy/k8s` with kustomize (`kubectl kustomize`), or takes its resource files as they are where kubectl

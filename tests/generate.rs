@@ -484,7 +484,10 @@ fn three_partitions_merge_into_the_single_host_directory() {
 
     let o = dynforge(&["merge", "--out", &arg(&out), &arg(&parts[2]), &arg(&parts[0]), &arg(&parts[1])]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stdout).contains("merged 3 partitions: 8 shards (8 hard-linked, 0 copied)"));
+    assert!(
+        String::from_utf8_lossy(&o.stdout)
+            .contains("merged 3 partitions: 8 shards (8 hard-linked, 0 copied, 0 pruned)")
+    );
     assert_eq!(shard_hashes(&out), shard_hashes(single.path()), "byte-identical shards");
     assert_eq!(
         std::fs::read(out.join("manifest.toml")).unwrap(),
@@ -496,4 +499,104 @@ fn three_partitions_merge_into_the_single_host_directory() {
     // Merging again into the same place is refused, not mixed.
     let o = dynforge(&["merge", "--out", &arg(&out), &arg(&parts[0]), &arg(&parts[1]), &arg(&parts[2])]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("must be new or empty"), "{o:?}");
+}
+
+/// Name -> bytes of every file in a run directory's cache.
+fn caches(dir: &Path) -> BTreeMap<String, Vec<u8>> {
+    std::fs::read_dir(dir.join("cache"))
+        .map(|l| {
+            l.map(|e| e.unwrap())
+                .map(|e| (e.file_name().to_string_lossy().to_string(), std::fs::read(e.path()).unwrap()))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// The bounded-disk path: each partition cached and its shards deleted, the partitions merged by their caches, and
+/// the result the same as the single-host directory's (same cache files byte for byte, the same trained weights).
+#[test]
+fn pruned_partitions_merge_into_the_caches_and_model_of_the_single_host_run() {
+    let ok = |o: Output| {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let arg = |p: &Path| p.to_str().unwrap().to_string();
+    let transformer = ["--model", "transformer", "--window", "32:64:16"];
+    let root = tempfile::tempdir().unwrap();
+    let single = root.path().join("single");
+    ok(dynforge(&generate_args(&single, "6", "2", &["--workers", "2"])));
+    let parts: Vec<std::path::PathBuf> = (0..3).map(|i| root.path().join(format!("part{i}"))).collect();
+    for (i, p) in parts.iter().enumerate() {
+        let part = format!("{i}/3");
+        ok(dynforge(&generate_args(p, "6", "2", &["--workers", "1", "--partition", &part])));
+    }
+    let before = shard_hashes(&parts[0]);
+    let said = ok(dynforge(&["dataset", "prepare", &arg(&parts[0]), "--prune"]));
+    assert!(said.contains(&format!("{} shards pruned", before.len())), "{said}");
+    assert!(shard_hashes(&parts[0]).is_empty());
+    let listed = dynforge_proto::run_dir::read_pruned(&parts[0]).unwrap();
+    assert_eq!(listed, before.keys().cloned().collect::<BTreeSet<_>>());
+    // Pruned is not missing: verify passes and says so, a resume does not remake them, the run cannot grow.
+    let said = ok(dynforge(&["verify", &arg(&parts[0])]));
+    assert!(said.contains(&format!("({} pruned", before.len())), "{said}");
+    ok(dynforge(&generate_args(&parts[0], "6", "2", &["--workers", "1", "--partition", "0/3"])));
+    assert!(shard_hashes(&parts[0]).is_empty(), "a resume remade pruned shards");
+    let o = dynforge(&generate_args(&parts[0], "9", "2", &["--workers", "1", "--partition", "0/3"]));
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("cannot grow"), "{o:?}");
+
+    // A cache of other settings cannot be made from pruned shards.
+    let o = dynforge(&[&["dataset", "prepare", &arg(&parts[0])][..], &transformer].concat());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("pruned.txt"), "{o:?}");
+
+    // Partition 1 gets both caches before pruning, partition 2 only the physics one, and keeps its shards: the merge
+    // is refused (the pruned partition 0 has no windows cache) before it writes anything.
+    ok(dynforge(&[&["dataset", "prepare", &arg(&parts[1])][..], &transformer].concat()));
+    ok(dynforge(&["dataset", "prepare", &arg(&parts[1]), "--prune"]));
+    ok(dynforge(&["dataset", "prepare", &arg(&parts[2])]));
+    let out = root.path().join("merged");
+    let merge = || dynforge(&["merge", "--out", &arg(&out), &arg(&parts[0]), &arg(&parts[1]), &arg(&parts[2])]);
+    let o = merge();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("has no current windows cache"), "{o:?}");
+    assert!(!out.exists());
+    // Giving partition 0's pruned shards up: without the list, the next generate remakes them, byte for byte.
+    std::fs::remove_file(parts[0].join("pruned.txt")).unwrap();
+    ok(dynforge(&generate_args(&parts[0], "6", "2", &["--workers", "1", "--partition", "0/3"])));
+    assert_eq!(shard_hashes(&parts[0]), before);
+    ok(dynforge(&[&["dataset", "prepare", &arg(&parts[0])][..], &transformer].concat()));
+    ok(dynforge(&["dataset", "prepare", &arg(&parts[0]), "--prune"]));
+    ok(dynforge(&[&["dataset", "prepare", &arg(&parts[2])][..], &transformer].concat()));
+    // Partition 2 keeps its shards: they are linked, the rest come from the caches.
+    let said = ok(merge());
+    assert!(
+        said.contains("12 shards (4 hard-linked, 0 copied, 8 pruned)") && said.contains("2 caches combined"),
+        "{said}"
+    );
+    ok(dynforge(&["verify", &arg(&out)]));
+    ok(dynforge(&["dataset", "prepare", &arg(&single)]));
+    ok(dynforge(&[&["dataset", "prepare", &arg(&single)][..], &transformer].concat()));
+    let (merged, whole) = (caches(&out), caches(&single));
+    assert_eq!(merged.len(), 2);
+    assert_eq!(merged.keys().collect::<Vec<_>>(), whole.keys().collect::<Vec<_>>(), "the same cache names");
+    assert!(merged == whole, "the combined caches differ from the single-host run's");
+
+    // Both train the same weights; other settings than the prepared ones are refused, naming the pruned shards.
+    for (data, ckpt) in [(&out, "c-merged"), (&single, "c-single")] {
+        let c = root.path().join(ckpt);
+        ok(dynforge(&["train", &arg(data), "--out", &arg(&c), "--epochs", "1", "--generated", "512", "--dim", "32"]));
+    }
+    let weights = |c: &str| std::fs::read(root.path().join(c).join("model.safetensors")).unwrap();
+    assert!(weights("c-merged") == weights("c-single"), "different weights from the same data");
+    let o = dynforge(&["train", &arg(&out), "--out", &arg(&root.path().join("c-other")), "--len", "16"]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("pruned.txt"), "{o:?}");
+    // With no shard left, the kinematics come from the generator: the same features, so the same windows cache.
+    let c = root.path().join("c-transformer");
+    let o = dynforge(
+        &[
+            &["train", &arg(&parts[1]), "--out", &arg(&c), "--epochs", "1", "--preset", "fast", "--len", "32"][..],
+            &transformer[..2],
+        ]
+        .concat(),
+    );
+    ok(o);
+    assert!(c.join("model.safetensors").exists());
 }

@@ -12,6 +12,7 @@ pub mod lock;
 pub mod manifest;
 pub mod merge;
 pub mod plan;
+pub mod prune;
 pub mod run;
 pub mod status;
 pub mod verify;

@@ -61,7 +61,7 @@ impl Manifest {
         }
     }
 
-    fn to_toml(&self) -> String {
+    pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("a manifest serialises")
     }
 

@@ -4,12 +4,16 @@
 //!
 //! A merge is refused unless the partitions are exactly the `n` of one run (same settings, indices `0..n` once each)
 //! and each verifies complete: every planned job recorded done or discarded, every shard present with its recorded
-//! hash. The output then needs no further check, and training reads it like any run directory.
+//! hash or pruned. The output then needs no further check, and training reads it like any run directory.
+//!
+//! Pruned partitions (`dataset prepare --prune`: shards deleted once cached) merge into a pruned directory: their
+//! pruned lists are joined, and the caller's `caches` step writes the output's caches from the partitions' (the
+//! trainer knows their format) before the manifest, which comes last.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::run_dir::{LEDGER, SHARDS};
+use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
 use crate::ledger::{self, Status};
 use crate::lock::RunLock;
@@ -30,6 +34,8 @@ pub enum MergeError {
          manifest.toml: delete it and merge again; the partitions are untouched)"
     )]
     OutputNotEmpty(String),
+    #[error("combining the partitions' caches: {0}")]
+    Caches(String),
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
     #[error(transparent)]
@@ -50,11 +56,19 @@ pub struct Merged {
     /// Shards that had to be copied (another filesystem); the rest are hard links.
     pub copied: usize,
     pub ledger_entries: usize,
+    /// Shards recorded pruned in the partitions (not linked: their data are in the caches).
+    pub pruned: usize,
 }
 
 /// Merges the partition directories `parts` into the new directory `out`. `progress(k, n)` follows the verification
-/// of each partition's shards.
-pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Merged, MergeError> {
+/// of each partition's shards. `caches(manifest)` is called once the ledger, the shards and the pruned list are in
+/// place, with the bytes `out`'s manifest will have, and before that manifest is written.
+pub fn merge(
+    parts: &[PathBuf],
+    out: &Path,
+    mut progress: impl FnMut(usize, usize),
+    caches: impl FnOnce(&[u8]) -> Result<(), String>,
+) -> Result<Merged, MergeError> {
     let io = |path: &Path, source| MergeError::Io { path: path.display().to_string(), source };
     // Every partition's settings, and the set of partitions.
     let mut manifests = Vec::new();
@@ -123,11 +137,20 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     let (mut ledger, _) = ledger::Ledger::open(&out.join(LEDGER))?;
     let engine = first.sim.engine.name();
     let mut merged = Merged { partitions: parts.len(), ..Merged::default() };
+    let mut pruned_out = std::collections::BTreeSet::new();
     for dir in by_index.values() {
         let entries = ledger::read(&dir.join(LEDGER))?;
+        let pruned = run_dir::read_pruned(dir).map_err(|e| io(dir, e))?;
         for e in ledger::latest(&entries).values() {
             if let Status::Done { .. } = e.status {
                 let name = e.shard_name(first.seed, engine);
+                if pruned.contains(&name) && !dir.join(SHARDS).join(&name).exists() {
+                    pruned_out.insert(name);
+                    merged.pruned += 1;
+                    ledger.append(e)?;
+                    merged.ledger_entries += 1;
+                    continue;
+                }
                 let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
                 if std::fs::hard_link(&from, &to).is_err() {
                     std::fs::copy(&from, &to).map_err(|e| io(&from, e))?;
@@ -139,7 +162,12 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
             merged.ledger_entries += 1;
         }
     }
+    if !pruned_out.is_empty() {
+        run_dir::write_pruned(out, &pruned_out).map_err(|e| io(out, e))?;
+    }
+    let manifest = Manifest { partition: Partition::WHOLE, ..first };
+    caches(manifest.to_toml().as_bytes()).map_err(MergeError::Caches)?;
     // Last, so that an interrupted merge leaves no directory that passes for a finished run.
-    Manifest { partition: Partition::WHOLE, ..first }.create_or_check(out)?;
+    manifest.create_or_check(out)?;
     Ok(merged)
 }

@@ -24,6 +24,8 @@ pub struct Report {
     pub pending: usize,
     /// Shards recorded as done but absent.
     pub missing: Vec<String>,
+    /// Shards recorded as done and absent because they were pruned (their data are in the caches).
+    pub pruned: usize,
     /// Shard files no ledger entry accounts for.
     pub extra: Vec<String>,
     /// Shards that exist but fail a check, with the reason.
@@ -48,9 +50,10 @@ impl std::fmt::Display for Report {
         }
         let reasons: Vec<String> = self.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
         let reasons = if reasons.is_empty() { String::new() } else { format!(" ({})", reasons.join(", ")) };
+        let pruned = if self.pruned > 0 { format!(" ({} pruned: cached only)", self.pruned) } else { String::new() };
         writeln!(
             f,
-            "{} jobs planned: {} done, {} discarded{reasons}, {} failed, {} pending",
+            "{} jobs planned: {} done{pruned}, {} discarded{reasons}, {} failed, {} pending",
             self.planned, self.done, self.discarded, self.failed, self.pending
         )?;
         for m in &self.missing {
@@ -115,6 +118,10 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
     let engine = manifest.sim.engine.name();
     let shards = dir.join(SHARDS);
     let mut report = Report { live: crate::lock::holder(dir), ..Report::default() };
+    let pruned = dynforge_proto::run_dir::read_pruned(dir).map_err(|source| VerifyError::Io {
+        path: dir.join(dynforge_proto::run_dir::PRUNED).display().to_string(),
+        source,
+    })?;
     let planned: BTreeMap<u64, Job> =
         plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition)
             .map(|j| (plan::job_id(&j, manifest.trajectories), j))
@@ -132,7 +139,11 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
                 let path = shards.join(&name);
                 expected_files.insert(name.clone());
                 if !path.exists() {
-                    report.missing.push(name);
+                    if pruned.contains(&name) {
+                        report.pruned += 1;
+                    } else {
+                        report.missing.push(name);
+                    }
                 } else if let Err(reason) = check_shard(&path, &job, *samples, *shard_hash) {
                     report.corrupt.push((name, reason));
                 }

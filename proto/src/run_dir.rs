@@ -6,8 +6,14 @@
 //! DIR/ledger.tsv      one checksummed, fsync'd line per finished job (done with its shard's hash, discarded, failed)
 //! DIR/shards/         one MCAP file per kept job (schema: `crate::shard`)
 //! DIR/logs/           one log per worker slot
-//! DIR/cache/          the trainer's preprocessed windows, keyed by what determines them
+//! DIR/cache/          the trainer's preprocessed windows and physics, keyed by what determines them
+//! DIR/pruned.txt      shards deleted once their data were cached (`dataset prepare --prune`), one name per line
 //! ```
+//!
+//! **Pruned shards.** A shard named in `pruned.txt` was recorded done, cached, and then deleted to bound the disk a
+//! paper-scale run needs: its data live on only in the caches that were current when it was pruned. It is not
+//! missing (verify counts it apart, generate does not remake it); deleting `pruned.txt` turns the absent shards
+//! into missing ones, which the next `generate` remakes (jobs are deterministic).
 //!
 //! **The temporary-file rule.** A file is written to a temporary file beside it, `.NAME.PID.tmp` (hidden, named after
 //! the final file and the writing process, so concurrent writers never share one), fsync'd, renamed over `NAME`, and
@@ -21,6 +27,30 @@ pub const LEDGER: &str = "ledger.tsv";
 pub const SHARDS: &str = "shards";
 pub const LOGS: &str = "logs";
 pub const CACHE: &str = "cache";
+pub const PRUNED: &str = "pruned.txt";
+
+const PRUNED_HEADER: &str = "# dynforge: shards deleted after their data were cached (dataset prepare --prune)";
+
+/// The shards of `dir` recorded as pruned (empty when there is no `pruned.txt`).
+pub fn read_pruned(dir: &Path) -> std::io::Result<std::collections::BTreeSet<String>> {
+    match std::fs::read_to_string(dir.join(PRUNED)) {
+        Ok(text) => {
+            Ok(text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')).map(String::from).collect())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Default::default()),
+        Err(e) => Err(std::io::Error::new(e.kind(), format!("{}: {e}", dir.join(PRUNED).display()))),
+    }
+}
+
+/// Records `names` as the pruned shards of `dir` (the whole list, replaced atomically).
+pub fn write_pruned<'a>(dir: &Path, names: impl IntoIterator<Item = &'a String>) -> std::io::Result<()> {
+    let mut text = format!("{PRUNED_HEADER}\n");
+    for n in names {
+        text.push_str(n);
+        text.push('\n');
+    }
+    write_atomic(&dir.join(PRUNED), text.as_bytes())
+}
 
 /// Whether a file name is a writer's temporary file (never a finished file).
 pub fn is_temporary(name: &str) -> bool {
@@ -81,6 +111,19 @@ mod tests {
         assert_eq!(name, format!(".r000001-t00-native.mcap.{}.tmp", std::process::id()));
         assert!(is_temporary(name));
         assert!(!is_temporary("r000001-t00-native.mcap") && !is_temporary(".hidden.mcap"));
+    }
+
+    #[test]
+    fn the_pruned_list_reads_back_and_is_empty_when_absent() {
+        let dir = std::env::temp_dir().join(format!("dynforge-pruned-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert!(read_pruned(&dir).unwrap().is_empty());
+        let names: std::collections::BTreeSet<String> =
+            ["r000001-t00-native.mcap", "r000002-t03-native.mcap"].map(String::from).into();
+        write_pruned(&dir, &names).unwrap();
+        assert_eq!(read_pruned(&dir).unwrap(), names);
+        assert!(std::fs::read_to_string(dir.join(PRUNED)).unwrap().starts_with('#'));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

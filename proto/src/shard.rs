@@ -25,7 +25,13 @@ pub const LIBRARY: &str = "dynforge-shard/1";
 /// The file name of the shard of (robot, trajectory) simulated by `engine`: derived from the job alone, so
 /// re-running a job rewrites the same file, and a reader can tell a shard's robot without opening it.
 pub fn file_name(robot: u64, trajectory: u32, engine: &str) -> String {
-    format!("r{robot:06}-t{trajectory:02}-{engine}.mcap")
+    format!("{}{trajectory:02}-{engine}.mcap", robot_prefix(robot))
+}
+
+/// The start every shard name of `robot` shares: robots sort by it as their shards sort by name (which is not
+/// numeric order past 999,999).
+pub fn robot_prefix(robot: u64) -> String {
+    format!("r{robot:06}-t")
 }
 
 /// The robot of a shard named by [`file_name`]; `None` for any other name.

@@ -74,8 +74,9 @@ pub fn generator(dir: &Path) -> Result<Option<(GeneratorConfig, u64)>, ReadError
     Ok(Some((m.generator, m.seed)))
 }
 
-/// The robot of a dataset directory: that of its first readable shard (every shard of a dataset shares the
-/// kinematics, which is all that windows and identification take from it).
+/// The robot of a dataset directory: that of its first readable shard, else (a directory whose shards were all
+/// pruned) robot 0 of its manifest's generator. Every robot of a dataset shares the kinematics, which is all that
+/// windows and identification take from it.
 pub fn dataset_robot(dir: &Path) -> Result<Model, ReadError> {
     let shards = shard_dir(dir);
     let paths = list_shards(&shards)
@@ -86,6 +87,11 @@ pub fn dataset_robot(dir: &Path) -> Result<Model, ReadError> {
             Ok(rec) => return Ok(rec.model),
             Err(e) => last = Some(e),
         }
+    }
+    if let Some((cfg, seed)) = generator(dir).ok().flatten()
+        && let Ok(robot) = dynforge_robot::generator::generate(&cfg, seed, 0)
+    {
+        return Ok(robot.model);
     }
     Err(last.unwrap_or_else(|| ReadError::Content {
         file: shards.display().to_string(),

@@ -191,6 +191,7 @@ impl Checkpoint {
         let mut store = SafetensorsStore::from_bytes(None);
         model.save_into(&mut store).map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
         let bytes = store.get_bytes().map_err(|e| file_error(&dir.join(WEIGHTS_FILE), e))?;
+        let bytes = canonical_safetensors(&bytes).ok_or_else(|| file_error(&dir.join(WEIGHTS_FILE), "unreadable"))?;
         write_atomic(&dir.join(WEIGHTS_FILE), &bytes)?;
         self.describe(dir)
     }
@@ -243,4 +244,32 @@ impl Checkpoint {
         }
         Ok((c, model.valid()))
     }
+}
+
+/// `bytes` (a safetensors file) with its tensors laid out in name order. The store writes them in the order of a
+/// hash map, which changes from run to run: the same weights must give the same file.
+fn canonical_safetensors(bytes: &[u8]) -> Option<Vec<u8>> {
+    let n = usize::try_from(u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?)).ok()?;
+    let header: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(bytes.get(8..8 + n)?).ok()?;
+    let data = &bytes[8 + n..];
+    let mut tensors: Vec<(String, serde_json::Value)> = header.into_iter().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    let (mut out_header, mut out_data) = (serde_json::Map::new(), Vec::with_capacity(data.len()));
+    for (name, mut info) in tensors {
+        if name != "__metadata__" {
+            let range = info.get("data_offsets")?.as_array()?;
+            let (a, b) = (range.first()?.as_u64()? as usize, range.get(1)?.as_u64()? as usize);
+            let start = out_data.len();
+            out_data.extend_from_slice(data.get(a..b)?);
+            info["data_offsets"] = serde_json::json!([start, out_data.len()]);
+        }
+        out_header.insert(name, info);
+    }
+    let mut text = serde_json::to_vec(&out_header).ok()?;
+    // The data start 8-byte aligned.
+    text.resize(text.len().next_multiple_of(8), b' ');
+    let mut out = (text.len() as u64).to_le_bytes().to_vec();
+    out.extend(text);
+    out.extend(out_data);
+    Some(out)
 }

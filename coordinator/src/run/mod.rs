@@ -138,6 +138,17 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     }
     let manifest =
         Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
+    let pruned = dynforge_proto::run_dir::read_pruned(&cfg.dir).map_err(dir_err)?;
+    if !pruned.is_empty() && Manifest::load(&cfg.dir)?.is_some_and(|m| m.robots < cfg.robots) {
+        return Err(GenerateError::Settings(format!(
+            "{}: {} shards were pruned (their data are only in the caches, which a larger dataset makes stale), so \
+             it cannot grow; delete {} to have the pruned shards remade by this generate, or generate the larger \
+             dataset into a new directory",
+            cfg.dir.display(),
+            pruned.len(),
+            dynforge_proto::run_dir::PRUNED
+        )));
+    }
     if let Some(before) = manifest.create_or_check(&cfg.dir)? {
         observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
     }
@@ -159,12 +170,13 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     }
     // A recorded shard that is gone (deleted, lost with a disk) is made again: the job is deterministic. (A damaged
     // one takes reading every file: `verify --repair` finds those and records them failed, so they rerun here too.)
+    // A pruned one is not gone: its data are in the caches.
     let shards = cfg.dir.join(SHARDS);
     let lost: Vec<u64> = finished
         .iter()
         .filter(|(_, e)| {
-            matches!(e.status, Status::Done { .. })
-                && !shards.join(e.shard_name(cfg.seed, cfg.sim.engine.name())).exists()
+            let name = e.shard_name(cfg.seed, cfg.sim.engine.name());
+            matches!(e.status, Status::Done { .. }) && !pruned.contains(&name) && !shards.join(&name).exists()
         })
         .map(|(id, _)| *id)
         .collect();

@@ -1,12 +1,12 @@
 //! The window cache: a run directory's preprocessed windows on disk, keyed by a hash of what determines them (the
-//! run manifest, the ledger's records, the window geometry, the feature list and this format's version), reused
-//! across trainer runs and rebuilt when any of these changes. Written atomically (temporary file, fsync, rename):
+//! run manifest, the ledger's records, the window geometry, the feature list and this format's version: [`CacheKey`]),
+//! reused across trainer runs and rebuilt when any of these changes. Written atomically (temporary file, fsync, rename):
 //! a crash mid-write leaves the previous state; a damaged file fails its checksum and is rebuilt.
 
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::NUM_LABELS;
-use dynforge_proto::run_dir::{CACHE, LEDGER, MANIFEST, SHARDS};
+use dynforge_proto::run_dir::{CACHE, LEDGER, MANIFEST, PRUNED, SHARDS, read_pruned};
 use dynforge_shard::content_hash;
 
 use dynforge_recording::dataset::list_shards;
@@ -65,6 +65,26 @@ impl CachedWindows {
         out
     }
 
+    /// The windows of a run's partitions as one (`crate::data::partitions`), in merged order.
+    pub(crate) fn combine(parts: &[CachedWindows]) -> Result<CachedWindows, String> {
+        let spec = parts.first().map_or(WindowSpec::default(), |p| p.spec);
+        let mut out =
+            CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
+        let robots: Vec<&[u64]> = parts.iter().map(|p| &p.robots[..]).collect();
+        for (p, items) in super::partitions::merged_order(&robots) {
+            let part = &parts[p];
+            if out.count() > 0 && part.width != out.width {
+                return Err(format!("windows of {} and {} values per step", part.width, out.width));
+            }
+            out.width = part.width;
+            let step = spec.len * part.width;
+            out.data.extend_from_slice(&part.data[items.start * step..items.end * step]);
+            out.labels.extend_from_slice(&part.labels[items.clone()]);
+            out.robots.extend_from_slice(&part.robots[items]);
+        }
+        Ok(out)
+    }
+
     fn append(&mut self, path: &Path, w: ShardWindows) -> Result<(u64, std::ops::Range<usize>), String> {
         if self.count() > 0 && w.width != self.width {
             return Err(format!("{}: {} values per step, the dataset has {}", path.display(), w.width, self.width));
@@ -97,39 +117,102 @@ fn read_shard(path: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Re
     Ok(ShardWindows { robot, labels, width, count, data })
 }
 
-/// The key of a cache of the run directory `dir`: a hash of its manifest, its ledger's records (sorted: completion
-/// order differs from run to run) and `preprocessing`, whatever else determines the cached values.
-pub(crate) fn dataset_key(dir: &Path, preprocessing: &[u8]) -> Result<u64, ReadError> {
+/// Names a cache file of a run directory: `KIND-PPPPPPPPPPPPPPPP-DDDDDDDDDDDDDDDD.bin`, where P hashes the
+/// preprocessing (whatever besides the data determines the cached values) and D the dataset (its manifest and its
+/// ledger's records, sorted: completion order differs from run to run). Kept apart, so that the partitions of one
+/// run, prepared alike, show which of their caches go together (same kind and P) when they are merged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub(crate) struct CacheKey {
+    pub kind: &'static str,
+    pub preprocessing: u64,
+}
+
+impl CacheKey {
+    pub fn new(kind: &'static str, material: &[u8]) -> Self {
+        CacheKey { kind, preprocessing: content_hash(material) }
+    }
+
+    pub fn file_name(&self, dataset: u64) -> String {
+        format!("{}-{:016x}-{dataset:016x}.bin", self.kind, self.preprocessing)
+    }
+
+    /// The file of this cache in the run directory `dir`, as its manifest and ledger are now.
+    pub fn path(&self, dir: &Path) -> Result<PathBuf, ReadError> {
+        Ok(dir.join(CACHE).join(self.file_name(dataset_hash_of(dir)?)))
+    }
+
+    /// The key and dataset hash a cache file name carries, for a kind in `kinds`.
+    pub fn parse(name: &str, kinds: &[&'static str]) -> Option<(CacheKey, u64)> {
+        let rest = name.strip_suffix(".bin")?;
+        let (head, dataset) = rest.rsplit_once('-')?;
+        let (kind, p) = head.rsplit_once('-')?;
+        let kind = *kinds.iter().find(|k| **k == kind)?;
+        let hex = |s: &str| (s.len() == 16).then(|| u64::from_str_radix(s, 16).ok()).flatten();
+        Some((CacheKey { kind, preprocessing: hex(p)? }, hex(dataset)?))
+    }
+}
+
+/// The dataset hash of a run directory with this manifest and ledger.
+pub(crate) fn dataset_hash(manifest: &[u8], ledger: &[u8]) -> u64 {
+    let ledger = String::from_utf8_lossy(ledger);
+    let mut lines: Vec<&str> = ledger.lines().collect();
+    lines.sort_unstable();
+    let mut material = manifest.to_vec();
+    material.extend(lines.join("\n").bytes());
+    content_hash(&material)
+}
+
+/// The dataset hash of the run directory `dir`.
+pub(crate) fn dataset_hash_of(dir: &Path) -> Result<u64, ReadError> {
     let read_file = |name: &str| {
         std::fs::read(dir.join(name))
             .map_err(|e| ReadError::Content { file: dir.join(name).display().to_string(), problem: e.to_string() })
     };
-    let mut material = read_file(MANIFEST)?;
-    let ledger = String::from_utf8_lossy(&read_file(LEDGER)?).to_string();
-    let mut lines: Vec<&str> = ledger.lines().collect();
-    lines.sort_unstable();
-    material.extend(lines.join("\n").bytes());
-    material.extend(preprocessing);
-    Ok(content_hash(&material))
+    Ok(dataset_hash(&read_file(MANIFEST)?, &read_file(LEDGER)?))
 }
 
-fn key(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<u64, ReadError> {
+/// After a cache miss: an error when shards of `dir` were pruned, whose data only a current cache could hold.
+pub(crate) fn check_not_pruned(dir: &Path, what: &str) -> Result<(), ReadError> {
+    let pruned =
+        read_pruned(dir).map_err(|e| ReadError::Content { file: dir.display().to_string(), problem: e.to_string() })?;
+    if pruned.is_empty() {
+        return Ok(());
+    }
+    let mut held: Vec<String> = std::fs::read_dir(dir.join(CACHE))
+        .map(|l| l.filter_map(Result::ok).map(|e| e.file_name().to_string_lossy().to_string()).collect())
+        .unwrap_or_default();
+    held.sort();
+    Err(ReadError::Content {
+        file: dir.display().to_string(),
+        problem: format!(
+            "{} shards were pruned ({PRUNED}): their data are only in the caches, and no intact {what} cache for \
+             these settings is current (cache/ holds: {}). Use the settings the directory was prepared with, or \
+             delete {PRUNED} and rerun its `dynforge generate` command to remake the shards",
+            pruned.len(),
+            if held.is_empty() { "nothing".to_string() } else { held.join(", ") }
+        ),
+    })
+}
+
+pub(crate) const KIND: &str = "windows";
+
+fn key(spec: &WindowSpec, features: &JacobianFeatures) -> CacheKey {
     let mut material = format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, GRID_DT).into_bytes();
     for e in &features.entries {
         material.extend(e.name.bytes());
     }
     material.extend(MAGIC);
-    dataset_key(dir, &material)
+    CacheKey::new(KIND, &material)
 }
 
-fn encode(w: &CachedWindows) -> Vec<u8> {
+pub(crate) fn encode(w: &CachedWindows) -> Vec<u8> {
     let mut e = Encoder::new(MAGIC, w.data.len() * 4 + w.labels.len() * (NUM_LABELS * 8 + 8));
     e.u64s([w.spec.len, w.spec.stride, w.spec.ssr, w.width, w.count()].map(|v| v as u64));
     e.f32s(&w.data).f64s(&w.labels.concat()).u64s(w.robots.iter().copied());
     e.finish()
 }
 
-fn decode(bytes: &[u8]) -> Option<CachedWindows> {
+pub(crate) fn decode(bytes: &[u8]) -> Option<CachedWindows> {
     let mut d = Decoder::open(bytes, MAGIC)?;
     let (len, stride, ssr, width, count) = (d.usize()?, d.usize()?, d.usize()?, d.usize()?, d.usize()?);
     let data = d.f32s(count.checked_mul(len)?.checked_mul(width)?)?;
@@ -141,7 +224,7 @@ fn decode(bytes: &[u8]) -> Option<CachedWindows> {
 
 /// Cache file of a run directory for this preprocessing.
 pub fn cache_path(dir: &Path, spec: &WindowSpec, features: &JacobianFeatures) -> Result<PathBuf, ReadError> {
-    Ok(dir.join(CACHE).join(format!("windows-{:016x}.bin", key(dir, spec, features)?)))
+    key(spec, features).path(dir)
 }
 
 /// The windows of every shard of the `generate` directory `dir`: from the cache if it is current, else built
@@ -157,6 +240,7 @@ pub fn load_or_build(
     if let Some(w) = std::fs::read(&path).ok().and_then(|b| decode(&b)) {
         return Ok((w, Vec::new()));
     }
+    check_not_pruned(dir, KIND)?;
     let io = |p: &Path| {
         let shown = p.display().to_string();
         move |e: std::io::Error| ReadError::Content { file: shown.clone(), problem: e.to_string() }

@@ -20,8 +20,9 @@ use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_shard::content_hash;
 
-use super::cache::dataset_key;
+use super::cache::{CacheKey, check_not_pruned};
 use super::codec::{Decoder, Encoder};
+use super::partitions::merged_order;
 use super::window::WindowSpec;
 
 /// Each joint's torque noise, as a fraction of the RMS of its own recorded torque. With the stops left out and the
@@ -146,6 +147,16 @@ impl EvidenceList {
         self.b.extend(&e.b);
     }
 
+    /// Appends item `i` of `other`, as part of recording `recording`.
+    fn push_from(&mut self, other: &EvidenceList, i: usize, recording: u64) {
+        let (r, p) = (self.rank, packed_len(self.rank));
+        self.robots.push(other.robots[i]);
+        self.labels.push(other.labels[i]);
+        self.recording.push(recording);
+        self.h.extend(&other.h[i * p..(i + 1) * p]);
+        self.b.extend(&other.b[i * r..(i + 1) * r]);
+    }
+
     /// Evidence `i`.
     pub fn get(&self, i: usize) -> Evidence {
         let (r, p) = (self.rank, packed_len(self.rank));
@@ -204,6 +215,28 @@ impl PhysicsSet {
         Ok(())
     }
 
+    /// The sets of a run's partitions as one (`crate::data::partitions`): recordings and windows in merged order,
+    /// each window still pointing at its recording.
+    pub(crate) fn combine(parts: &[PhysicsSet]) -> PhysicsSet {
+        let (spec, rank) = parts.first().map_or((WindowSpec::default(), 0), |p| (p.spec, p.windows.rank));
+        let mut out = PhysicsSet::new(spec, rank);
+        let mut moved: Vec<Vec<u64>> = parts.iter().map(|p| vec![0; p.recordings.len()]).collect();
+        let robots = |f: fn(&PhysicsSet) -> &EvidenceList| parts.iter().map(|p| &f(p).robots[..]).collect::<Vec<_>>();
+        for (p, items) in merged_order(&robots(|s| &s.recordings)) {
+            for i in items {
+                moved[p][i] = out.recordings.len() as u64;
+                out.recordings.push_from(&parts[p].recordings, i, moved[p][i]);
+            }
+        }
+        for (p, items) in merged_order(&robots(|s| &s.windows)) {
+            for i in items {
+                let list = &parts[p].windows;
+                out.windows.push_from(list, i, moved[p][list.recording[i] as usize]);
+            }
+        }
+        out
+    }
+
     fn append(&mut self, robot: u64, labels: [f64; NUM_LABELS], windows: &[Evidence], whole: &Evidence) {
         let k = self.recordings.len() as u64;
         self.recordings.push(robot, labels, k, whole);
@@ -212,7 +245,7 @@ impl PhysicsSet {
         }
     }
 
-    fn encode(&self) -> Vec<u8> {
+    pub(crate) fn encode(&self) -> Vec<u8> {
         let mut e = Encoder::new(MAGIC, (self.windows.h.len() + self.recordings.h.len()) * 8);
         e.u64s([self.spec.len, self.spec.stride, self.spec.ssr, self.windows.rank].map(|v| v as u64));
         self.windows.encode(&mut e);
@@ -220,7 +253,7 @@ impl PhysicsSet {
         e.finish()
     }
 
-    fn decode(bytes: &[u8]) -> Option<Self> {
+    pub(crate) fn decode(bytes: &[u8]) -> Option<Self> {
         let mut d = Decoder::open(bytes, MAGIC)?;
         let spec = WindowSpec { len: d.usize()?, stride: d.usize()?, ssr: d.usize()? };
         let rank = d.usize()?;
@@ -230,8 +263,10 @@ impl PhysicsSet {
     }
 }
 
+pub(crate) const KIND: &str = "physics";
+
 /// What the cache depends on besides the dataset: the window geometry, the noise model and the prior.
-fn preprocessing(spec: &WindowSpec, prior: &ParameterPrior) -> Vec<u8> {
+fn key(spec: &WindowSpec, prior: &ParameterPrior) -> CacheKey {
     let mut m = format!(
         "physics|{}:{}:{}|{}|{}|{}|",
         spec.len,
@@ -246,7 +281,7 @@ fn preprocessing(spec: &WindowSpec, prior: &ParameterPrior) -> Vec<u8> {
         m.extend(v.to_le_bytes());
     }
     m.extend(MAGIC);
-    m
+    CacheKey::new(KIND, &m)
 }
 
 /// The physics of every shard of the `generate` directory `dir`: from its cache if current, else computed on all
@@ -258,10 +293,11 @@ pub fn load_or_build(
     prior: &ParameterPrior,
     mut progress: impl FnMut(usize, usize) -> bool,
 ) -> Result<(PhysicsSet, Vec<String>), PhysicsError> {
-    let path = dir.join(CACHE).join(format!("physics-{:016x}.bin", dataset_key(dir, &preprocessing(spec, prior))?));
+    let path = key(spec, prior).path(dir)?;
     if let Some(set) = std::fs::read(&path).ok().and_then(|b| PhysicsSet::decode(&b)) {
         return Ok((set, Vec::new()));
     }
+    check_not_pruned(dir, KIND)?;
     let io = |p: &Path, e: std::io::Error| ReadError::Content { file: p.display().to_string(), problem: e.to_string() };
     let shards = dir.join(SHARDS);
     let paths = list_shards(&shards).map_err(|e| io(&shards, e))?;

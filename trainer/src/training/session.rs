@@ -140,6 +140,49 @@ pub struct Trained {
     pub inputs: Inputs,
 }
 
+/// Builds the cache a session of `kind` with window geometry `spec` reads from the `generate` directory `data` (or
+/// finds it current), without training: what `dataset prepare` runs on each partition before its shards are pruned.
+/// Returns what the cache holds. An error if any shard had to be skipped, since pruning would lose it.
+pub fn prepare(
+    data: &Path,
+    kind: ModelKind,
+    spec: &WindowSpec,
+    stop: &AtomicBool,
+    observer: &mut dyn SessionObserver,
+) -> Result<String, SessionError> {
+    let (what, skipped, hit) = match kind {
+        ModelKind::Physics => {
+            observer.message(&format!("fitting the generator's parameter prior to {} robots", physics::PRIOR_ROBOTS));
+            let prior = physics::dataset_prior(data)?;
+            let (set, skipped) = physics::load_or_build(data, spec, &prior, |k, n| {
+                observer.preprocessing("physics", k, n);
+                !stop.load(Ordering::Relaxed)
+            })?;
+            (
+                format!("physics of {} windows and {} recordings", set.windows.len(), set.recordings.len()),
+                skipped,
+                set.hit,
+            )
+        }
+        ModelKind::Transformer => {
+            let features = JacobianFeatures::new(&dataset_robot(data)?);
+            let (w, skipped) = load_or_build(data, spec, &features, |k, n| {
+                observer.preprocessing("windows", k, n);
+                !stop.load(Ordering::Relaxed)
+            })?;
+            (format!("{} windows of {} x {} values", w.count(), spec.len, w.width), skipped, w.hit)
+        }
+    };
+    if !skipped.is_empty() {
+        return Err(SessionError::Setup(format!(
+            "{} shard(s) could not be cached ({}); `dynforge verify --repair` then `generate` remake them",
+            skipped.len(),
+            skipped.join("; ")
+        )));
+    }
+    Ok(format!("{what} ({})", if hit { "already cached" } else { "cached" }))
+}
+
 /// One training run.
 pub struct Session<'a> {
     /// A `dynforge generate` directory.
@@ -358,7 +401,7 @@ impl Session<'_> {
             if set.hit { "from the cache" } else { "computed and cached" }
         ));
         let source = PhysicsSource {
-            generator: generator_cfg,
+            generator: generator_cfg.clone(),
             seed: draw_seed(seed, Draw::Synthetic),
             per_epoch: self.recipe.generated_per_epoch,
         };

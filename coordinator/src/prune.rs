@@ -1,0 +1,77 @@
+//! Pruning: a finished run directory's shards deleted once the trainer has cached their data, so that a dataset too
+//! large for the disk can still be generated and trained on, a partition at a time (raw shards ~1 MB each, their
+//! physics ~25 KB). What was pruned is recorded in `DIR/pruned.txt` (`dynforge_proto::run_dir`).
+
+use std::path::Path;
+use std::time::Duration;
+
+use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
+
+use crate::ledger::{self, Status};
+use crate::lock::RunLock;
+use crate::manifest::Manifest;
+use crate::verify::{VerifyError, verify};
+
+#[derive(Debug, thiserror::Error)]
+pub enum PruneError {
+    #[error("{dir}: cannot prune: {problem}")]
+    NotReady { dir: String, problem: String },
+    #[error("{dir}: caching before pruning: {problem}; no shard was deleted")]
+    Cache { dir: String, problem: String },
+    #[error(transparent)]
+    Verify(#[from] VerifyError),
+    #[error(transparent)]
+    Manifest(#[from] crate::manifest::ManifestError),
+    #[error(transparent)]
+    Ledger(#[from] ledger::LedgerError),
+    #[error(transparent)]
+    Lock(#[from] crate::lock::LockError),
+}
+
+/// Prunes the run directory `dir`: takes its lock (no generate may change it meanwhile), checks that it verifies
+/// complete, calls `cache()` to write the caches that will hold the shards' data, then records every present shard
+/// in the pruned list and deletes it. Returns the shards deleted. `progress` follows the verification.
+///
+/// The list is written before any file is deleted: a crash in between leaves shards both listed and present, which
+/// read as present, and the next prune deletes them.
+pub fn prune(
+    dir: &Path,
+    progress: impl FnMut(usize, usize),
+    cache: impl FnOnce() -> Result<(), String>,
+) -> Result<usize, PruneError> {
+    let _lock = RunLock::acquire(dir, Duration::ZERO)?;
+    let not_ready = |problem: String| PruneError::NotReady { dir: dir.display().to_string(), problem };
+    let report = verify(dir, progress)?;
+    // The lock is ours: a live holder seen by verify is this process.
+    if !report.is_ok() {
+        return Err(not_ready(format!("it does not verify: {}", report.to_string().trim_end().replace('\n', "; "))));
+    }
+    if report.pending + report.failed > 0 {
+        return Err(not_ready(format!(
+            "{} job(s) pending and {} failed; finish the generation first (its ledger is part of the caches' key, so \
+             a cache made now would not hold the later shards)",
+            report.pending, report.failed
+        )));
+    }
+    cache().map_err(|problem| PruneError::Cache { dir: dir.display().to_string(), problem })?;
+    let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
+    let engine = manifest.sim.engine.name();
+    let entries = ledger::read(&dir.join(LEDGER))?;
+    let shards = dir.join(SHARDS);
+    let io = |p: &Path, source| VerifyError::Io { path: p.display().to_string(), source };
+    let mut pruned = run_dir::read_pruned(dir).map_err(|e| io(dir, e))?;
+    let present: Vec<String> = ledger::latest(&entries)
+        .values()
+        .filter(|e| matches!(e.status, Status::Done { .. }))
+        .map(|e| e.shard_name(manifest.seed, engine))
+        .filter(|name| shards.join(name).exists())
+        .collect();
+    pruned.extend(present.iter().cloned());
+    run_dir::write_pruned(dir, &pruned).map_err(|e| io(dir, e))?;
+    for name in &present {
+        let path = shards.join(name);
+        std::fs::remove_file(&path).map_err(|e| io(&path, e))?;
+    }
+    std::fs::File::open(&shards).and_then(|d| d.sync_all()).map_err(|e| io(&shards, e))?;
+    Ok(present.len())
+}

@@ -1,0 +1,154 @@
+//! The caches of one run's partitions combined into the caches of the merged directory (`dynforge merge`), so that
+//! partitions whose shards were pruned once cached still merge into a directory that trains.
+//!
+//! A cache lists its items (windows, recordings) shard by shard in shard-name order. Partitions split a run by robot,
+//! so each robot's items are one contiguous block in exactly one partition, and the merged directory's order is
+//! those blocks sorted by the robot's place in shard-name order: the combined cache is byte for byte the one the
+//! merged directory would build from its shards.
+
+use std::collections::BTreeSet;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::run_dir::{CACHE, LEDGER, read_pruned, write_atomic};
+
+use super::cache::{self, CacheKey, CachedWindows, dataset_hash, dataset_hash_of};
+use super::physics::{self, PhysicsSet};
+
+const KINDS: [&str; 2] = [cache::KIND, physics::KIND];
+
+/// The items of several partitions' lists (each the robot of every item), in merged order: (partition, items).
+pub(crate) fn merged_order(parts: &[&[u64]]) -> Vec<(usize, Range<usize>)> {
+    let mut blocks = Vec::new();
+    for (p, robots) in parts.iter().enumerate() {
+        let mut start = 0;
+        for i in 1..=robots.len() {
+            if i == robots.len() || robots[i] != robots[start] {
+                blocks.push((dynforge_proto::shard::robot_prefix(robots[start]), p, start..i));
+                start = i;
+            }
+        }
+    }
+    blocks.sort_by(|a, b| a.0.cmp(&b.0));
+    blocks.into_iter().map(|(_, p, r)| (p, r)).collect()
+}
+
+/// The caches current in every partition of a run, which [`Plan::combine`] merges.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    keys: Vec<CacheKey>,
+}
+
+/// The plan for `parts`. An error when a partition lacks a cache another has while shards were pruned (the merged
+/// directory would hold the pruned shards' data for no settings), or when pruned shards are in no current cache.
+pub fn plan(parts: &[PathBuf]) -> Result<Plan, String> {
+    let mut current: Vec<BTreeSet<CacheKey>> = Vec::new();
+    for dir in parts {
+        let dataset = dataset_hash_of(dir).map_err(|e| e.to_string())?;
+        let names = std::fs::read_dir(dir.join(CACHE))
+            .map(|l| l.filter_map(Result::ok).map(|e| e.file_name().to_string_lossy().to_string()).collect())
+            .unwrap_or_else(|_| Vec::new());
+        current.push(
+            names
+                .iter()
+                .filter_map(|n| CacheKey::parse(n, &KINDS))
+                .filter(|(_, d)| *d == dataset)
+                .map(|(k, _)| k)
+                .collect(),
+        );
+    }
+    let all: BTreeSet<CacheKey> = current.iter().flatten().copied().collect();
+    let mut any_pruned = false;
+    for dir in parts {
+        any_pruned |= !read_pruned(dir).map_err(|e| e.to_string())?.is_empty();
+    }
+    let common: Vec<CacheKey> = all.iter().copied().filter(|k| current.iter().all(|c| c.contains(k))).collect();
+    if any_pruned {
+        if let Some((dir, key)) =
+            all.iter().find_map(|k| parts.iter().zip(&current).find(|(_, c)| !c.contains(k)).map(|(d, _)| (d, k)))
+        {
+            return Err(format!(
+                "{} has no current {} cache {:016x}, which another partition has, and shards were pruned: run \
+                 `dynforge dataset prepare` with the same settings on every partition",
+                dir.display(),
+                key.kind,
+                key.preprocessing
+            ));
+        }
+        if common.is_empty() {
+            return Err("shards were pruned, but the partitions have no current cache".into());
+        }
+    }
+    Ok(Plan { keys: common })
+}
+
+impl Plan {
+    /// How many caches the merge will combine.
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// Writes into the merged directory `out` (its ledger written, its manifest to be `manifest`) the combination
+    /// of each cache of the plan made for `parts`; returns the file names written.
+    pub fn combine(&self, parts: &[PathBuf], out: &Path, manifest: &[u8]) -> Result<Vec<String>, String> {
+        let ledger = std::fs::read(out.join(LEDGER)).map_err(|e| format!("{}: {e}", out.join(LEDGER).display()))?;
+        let merged_dataset = dataset_hash(manifest, &ledger);
+        std::fs::create_dir_all(out.join(CACHE)).map_err(|e| format!("{}: {e}", out.join(CACHE).display()))?;
+        let mut written = Vec::new();
+        for &key in &self.keys {
+            let mut files = Vec::new();
+            for dir in parts {
+                let path = key.path(dir).map_err(|e| e.to_string())?;
+                files.push((std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?, path));
+            }
+            let broken = |p: &Path| format!("{}: not an intact {} cache", p.display(), key.kind);
+            let bytes = if key.kind == physics::KIND {
+                let sets = files.iter().map(|(b, p)| PhysicsSet::decode(b).ok_or_else(|| broken(p))).collect::<Result<
+                    Vec<_>,
+                    _,
+                >>(
+                )?;
+                PhysicsSet::combine(&sets).encode()
+            } else {
+                let sets = files
+                    .iter()
+                    .map(|(b, p)| cache::decode(b).ok_or_else(|| broken(p)))
+                    .collect::<Result<Vec<_>, _>>()?;
+                cache::encode(&CachedWindows::combine(&sets)?)
+            };
+            let name = key.file_name(merged_dataset);
+            let path = out.join(CACHE).join(&name);
+            write_atomic(&path, &bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+            written.push(name);
+        }
+        Ok(written)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robots_merge_in_shard_name_order_blocks_kept_whole() {
+        // Partition a: robots 999999 (two items) and 4; b: 1000000 and 100000. Shard names sort r000004 <
+        // r100000-t < r1000000 < r999999: not numeric past six digits.
+        let a = [999_999, 999_999, 4];
+        let b = [1_000_000, 100_000, 100_000];
+        let order = merged_order(&[&a, &b]);
+        assert_eq!(order, vec![(0, 2..3), (1, 1..3), (1, 0..1), (0, 0..2)]);
+        let mut names: Vec<String> = [999_999, 4, 1_000_000, 100_000]
+            .iter()
+            .map(|&r| dynforge_proto::shard::file_name(r, 0, "native"))
+            .collect();
+        names.sort();
+        let robots = |p: usize, i: usize| if p == 0 { a[i] } else { b[i] };
+        let by_order: Vec<String> =
+            order.iter().map(|(p, r)| dynforge_proto::shard::file_name(robots(*p, r.start), 0, "native")).collect();
+        assert_eq!(by_order, names);
+    }
+}
