@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use dynforge_robot::urdf;
+use dynforge_recording::robot_document;
 use dynforge_trainer::inference::estimate_to_urdf;
 
 #[derive(Args)]
@@ -31,9 +31,9 @@ pub struct EstimateArgs {
 }
 
 pub fn run(args: EstimateArgs) -> Result<()> {
-    let base = args.urdf.as_ref().map(urdf::load).transpose()?;
+    let (document, source) = robot_document(args.urdf.as_deref(), &args.log)?;
     let out = args.out.clone().unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
-    let report = estimate_to_urdf(&args.checkpoint, &args.log, base.as_ref(), &out, !args.no_refine)?;
+    let report = estimate_to_urdf(&args.checkpoint, &args.log, (&document, &source), &out, !args.no_refine)?;
     if let Some(w) = &report.warning {
         eprintln!("warning: {w}");
     }

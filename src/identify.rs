@@ -6,6 +6,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_identify::calibrate_files;
 use dynforge_proto::run_dir::write_atomic;
+use dynforge_recording::robot_document;
 use dynforge_robot::urdf;
 
 #[derive(Args)]
@@ -32,10 +33,15 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     if !(args.spread > 0.0 && args.spread.is_finite()) {
         bail!("--spread {} is not a positive number", args.spread);
     }
-    let model = args.urdf.as_ref().map(urdf::load).transpose()?;
+    // The calibration is written into the user's URDF, or else into the first log's description.
+    let (document, source) = robot_document(args.urdf.as_deref(), &args.logs[0])?;
+    let model = args.urdf.as_ref().map(|_| urdf::parse(&document, &source)).transpose()?;
     let c = calibrate_files(&args.logs, model, args.spread)?;
     let out = args.out.unwrap_or_else(|| args.logs[0].with_extension("calibrated.urdf"));
-    let text = urdf::to_string(&c.calibration.model, &urdf::BaseLink::default());
+    let (text, notes) = urdf::patch(&document, &source, &c.calibration.model)?;
+    for n in notes {
+        eprintln!("note: {n}");
+    }
     write_atomic(&out, text.as_bytes()).with_context(|| format!("writing {}", out.display()))?;
     match args.json {
         true => println!("{}", serde_json::to_string_pretty(&c.json(&out))?),

@@ -86,6 +86,20 @@ fn the_urdf_reader_never_panics() {
 }
 
 #[test]
+fn writing_into_a_users_urdf_never_panics() {
+    let robot = generate(&GeneratorConfig::default(), 1, 0).unwrap();
+    let other = generate(&GeneratorConfig::default(), 1, 1).unwrap().model;
+    // A fixed tool, so that the welded-inertia path is reached too.
+    let tool = "<joint name=\"t\" type=\"fixed\"><parent link=\"link_6\"/><child link=\"tool\"/></joint><link \
+                name=\"tool\"><inertial><mass value=\"0.5\"/><inertia ixx=\"1e-3\" ixy=\"0\" ixz=\"0\" iyy=\"1e-3\" \
+                iyz=\"0\" izz=\"1e-3\"/></inertial></link></robot>";
+    let urdf = robot.urdf().replace("</robot>", tool);
+    fuzz(urdf.as_bytes(), 1000, |b| {
+        let _ = dynforge_robot::urdf::patch(&String::from_utf8_lossy(b), "fuzz.urdf", &other);
+    });
+}
+
+#[test]
 fn the_shard_and_bag_readers_never_panic() {
     let dir = tempfile::tempdir().unwrap();
     let job = Job { seed: 1, robot: 0, trajectory: 0 };

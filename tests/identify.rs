@@ -24,6 +24,12 @@ fn identify_calibrates_a_wrong_urdf_to_the_logs_of_the_robot() {
     // Another robot of the same family: same kinematics and joint names, other masses, inertias and friction.
     let wrong = dir.path().join("wrong.urdf");
     assert!(dynforge(&["robot", "--seed", "3", "--id", "2", "--out", wrong.to_str().unwrap()]).status.success());
+    // As a user's file: with elements the calibration must leave as they are.
+    let extras = "  <ros2_control name=\"arm\" type=\"system\">\n    <joint name=\"joint_0\"><state_interface \
+                  name=\"position\"/></joint>\n  </ros2_control>\n  <gazebo reference=\"link_1\"><material>Gazebo/Grey\
+                  </material></gazebo>\n</robot>";
+    let user = std::fs::read_to_string(&wrong).unwrap().replace("</robot>", extras);
+    std::fs::write(&wrong, &user).unwrap();
     let out = dir.path().join("calibrated.urdf");
     let mut args = vec!["identify", "--urdf", wrong.to_str().unwrap(), "--out", out.to_str().unwrap(), "--json"];
     args.extend(logs.iter().map(|p| p.to_str().unwrap()));
@@ -43,6 +49,9 @@ fn identify_calibrates_a_wrong_urdf_to_the_logs_of_the_robot() {
     // within 10 % (0.0-2 % measured, 6 % on joint 3, from two 7 s logs).
     let truth = labels(&generate(&GeneratorConfig::default(), 3, 1).unwrap().model).unwrap();
     let calibrated = labels(&dynforge_robot::urdf::load(&out).unwrap()).unwrap();
+    let written = std::fs::read_to_string(&out).unwrap();
+    assert!(written.ends_with(&format!("{extras}\n")) || written.ends_with(extras), "the user's elements were lost");
+    assert_eq!(written.lines().count(), user.lines().count(), "only <inertial> and <dynamics> contents change");
     for (k, l) in LABELS.iter().enumerate() {
         let bound = match l.kind {
             LabelKind::Coulomb => 0.01,

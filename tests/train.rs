@@ -119,6 +119,10 @@ fn train_evaluate_and_estimate_a_small_dataset() {
     ]));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["parameters"].as_object().unwrap().len(), 38);
+    // Written into the log's own description: the base keeps its visual (the model alone has none to write).
+    let written = std::fs::read_to_string(&urdf).unwrap();
+    let base = &written[written.find("<link name=\"base_link\">").unwrap()..];
+    assert!(base[..base.find("</link>").unwrap()].contains("<visual>"), "{written}");
     // Refined by physics: the log's own torques are explained far better than by the network alone.
     let r = &v["refinement"];
     let (refined, network) =

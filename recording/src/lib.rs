@@ -12,5 +12,5 @@ mod read;
 pub mod resample;
 pub mod samples;
 
-pub use read::{GRID_DT, ReadError, Recording, log_file, read};
+pub use read::{GRID_DT, ReadError, Recording, log_file, read, robot_document};
 pub use samples::JointTrajectory;

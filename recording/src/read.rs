@@ -54,6 +54,24 @@ pub fn log_file(path: &Path) -> Result<PathBuf, ReadError> {
     }
 }
 
+/// The URDF document of the robot of `log`: the file `urdf` when given, else the log's `/robot_description`; with the
+/// name to report it by. What `estimate` and `identify` write their results into.
+pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String), ReadError> {
+    if let Some(path) = urdf {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ReadError::Content { file: path.display().to_string(), problem: e.to_string() })?;
+        return Ok((text, path.display().to_string()));
+    }
+    let path = &log_file(log)?;
+    let file = path.display().to_string();
+    let bag = dynforge_shard::read(path)?;
+    let text = bag.robot_description.ok_or_else(|| ReadError::Content {
+        file: file.clone(),
+        problem: "no /robot_description in the file: give the robot's URDF".into(),
+    })?;
+    Ok((text, format!("{file} (/robot_description)")))
+}
+
 /// Reads a shard or bag (a file, or a rosbag2 directory of one); the robot comes from its `/robot_description`
 /// unless `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::{LABELS, NUM_LABELS};
-use dynforge_robot::{Model, parameters, urdf};
+use dynforge_robot::{parameters, urdf};
 
 use super::{Estimate, InferenceError, Predictor, Refinement};
 
@@ -19,22 +19,26 @@ pub struct EstimateReport {
     pub refinement: Option<Refinement>,
     pub warning: Option<String>,
     pub projections: Vec<String>,
+    /// What writing into the user's URDF could not do as asked (a welded tool heavier than the estimate).
+    pub notes: Vec<String>,
     pub urdf: PathBuf,
 }
 
-/// Estimates the robot of the recording `log` with the checkpoint in `dir` (the robot from the log's
-/// `/robot_description` unless `model` is given), refines it by the log's torques if `refine`, and writes the URDF
-/// with the result to `out` (atomically). A log whose torques cannot refine (no joint moves) keeps the estimator's
-/// output, with a warning.
+/// Estimates the robot of the recording `log` with the checkpoint in `dir`, the robot being that of the URDF
+/// `document` (its text and name), refines it by the log's torques if `refine`, and writes the document with the
+/// result to `out` (atomically; only the moving links' `<inertial>` and joints' `<dynamics>` change). A log whose
+/// torques cannot refine (no joint moves) keeps the estimator's output, with a warning.
 pub fn estimate_to_urdf(
     dir: &Path,
     log: &Path,
-    model: Option<&Model>,
+    document: (&str, &str),
     out: &Path,
     refine: bool,
 ) -> Result<EstimateReport, InferenceError> {
     let predictor = Predictor::load(dir)?;
-    let (rec, estimate) = predictor.estimate_file(dir, log, model)?;
+    let model = urdf::parse(document.0, document.1)
+        .map_err(|e| InferenceError::Recording { file: document.1.to_string(), problem: e.problem.to_string() })?;
+    let (rec, estimate) = predictor.estimate_file(dir, log, Some(&model))?;
     let (refinement, warning) = match refine {
         false => (None, None),
         true => match predictor.refine(dir, &rec, &estimate) {
@@ -50,9 +54,12 @@ pub fn estimate_to_urdf(
     let (robot, projections) = parameters::with_labels(&rec.model, &wanted).map_err(|e| bad(&e))?;
     // What is reported is what the URDF carries: the labels after any projection into physics.
     let values = parameters::labels(&robot).map_err(|e| bad(&e))?;
-    dynforge_proto::run_dir::write_atomic(out, urdf::to_string(&robot, &urdf::BaseLink::default()).as_bytes())
+    let (text, notes) = urdf::patch(document.0, document.1, &robot)
+        .map_err(|e| InferenceError::Recording { file: document.1.to_string(), problem: e.problem.to_string() })?;
+    dynforge_proto::run_dir::write_atomic(out, text.as_bytes())
         .map_err(|e| InferenceError::Recording { file: out.display().to_string(), problem: e.to_string() })?;
-    Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, urdf: out.into() })
+    let urdf = out.into();
+    Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, notes, urdf })
 }
 
 impl EstimateReport {
@@ -76,7 +83,7 @@ impl EstimateReport {
         });
         serde_json::json!({
             "windows": e.windows, "parameters": parameters, "refinement": refined, "projections": self.projections,
-            "urdf": self.urdf,
+            "notes": self.notes, "urdf": self.urdf,
         })
     }
 }
@@ -112,6 +119,9 @@ impl std::fmt::Display for EstimateReport {
         }
         for n in &self.projections {
             writeln!(f, "projected: {n}")?;
+        }
+        for n in &self.notes {
+            writeln!(f, "note: {n}")?;
         }
         writeln!(f, "URDF with the estimated parameters: {}", self.urdf.display())
     }

@@ -5,6 +5,10 @@
 //! where it never moves), so real-world files such as the UR5's (with `base`, `ee_link` and `tool0` frames) load.
 //! Anything else (prismatic, floating, planar joints; two moving branches) is rejected with the element's name.
 
+mod patch;
+
+pub use patch::patch;
+
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
 

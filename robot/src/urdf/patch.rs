@@ -1,0 +1,222 @@
+//! New dynamic parameters written into the user's own URDF document: only the `<inertial>` of each moving link and
+//! the `<dynamics>` of each moving joint change; visuals, collisions, materials, fixed frames, `<ros2_control>`,
+//! `<gazebo>`, comments and formatting are kept byte for byte, so the file still drives the user's simulator and
+//! controllers.
+//!
+//! A link with fixed children (a flange, a tool) is one rigid body to the dynamics, and every loader (ours, KDL,
+//! Pinocchio, MuJoCo's compiler) adds the children's inertia to the link's. The estimate is of that sum, so the link
+//! is given the estimate less its welded children's inertia as the document states them, and the children keep
+//! theirs: a loader sums them back to the estimate.
+
+use std::collections::HashMap;
+
+use quick_xml::events::{BytesStart, Event};
+use quick_xml::reader::Reader;
+
+use super::{convert_inertial, parse};
+use crate::model::{Inertial, Model, ModelError, ModelProblem, check_physical};
+use crate::spatial::Inertia;
+
+/// A direct child of `<robot>` (a link or a joint), with its own direct children, as byte ranges of the document.
+struct Element {
+    tag: String,
+    name: String,
+    /// Where the element's closing tag starts (`None`: a self-closing element).
+    close: Option<usize>,
+    start: usize,
+    children: Vec<(String, std::ops::Range<usize>)>,
+}
+
+fn tag_and_name(e: &BytesStart) -> (String, String) {
+    let tag = String::from_utf8_lossy(e.local_name().as_ref()).into_owned();
+    let name = e
+        .try_get_attribute("name")
+        .ok()
+        .flatten()
+        .map(|a| String::from_utf8_lossy(&a.value).into_owned())
+        .unwrap_or_default();
+    (tag, name)
+}
+
+/// The links and joints of `doc` with their byte ranges.
+fn elements(doc: &str) -> Result<Vec<Element>, String> {
+    let mut reader = Reader::from_str(doc);
+    let (mut depth, mut out, mut open) = (0usize, Vec::new(), None::<Element>);
+    loop {
+        let before = reader.buffer_position() as usize;
+        let event = reader.read_event().map_err(|e| format!("at byte {}: {e}", reader.error_position()))?;
+        let after = reader.buffer_position() as usize;
+        match event {
+            Event::Start(e) => {
+                depth += 1;
+                let (tag, name) = tag_and_name(&e);
+                match (depth, open.as_mut()) {
+                    (2, _) => open = Some(Element { tag, name, close: None, start: before, children: Vec::new() }),
+                    (3, Some(parent)) => parent.children.push((tag, before..usize::MAX)),
+                    _ => {}
+                }
+            }
+            Event::Empty(e) => {
+                let (tag, name) = tag_and_name(&e);
+                match (depth + 1, open.as_mut()) {
+                    (2, _) => out.push(Element { tag, name, close: None, start: before, children: Vec::new() }),
+                    (3, Some(parent)) => parent.children.push((tag, before..after)),
+                    _ => {}
+                }
+            }
+            Event::End(_) => {
+                match (depth, open.as_mut()) {
+                    (2, Some(element)) => {
+                        element.close = Some(before);
+                        out.extend(open.take());
+                    }
+                    (3, Some(parent)) => {
+                        if let Some((_, range)) = parent.children.last_mut() {
+                            range.end = after;
+                        }
+                    }
+                    _ => {}
+                }
+                depth = depth.saturating_sub(1);
+            }
+            Event::Eof => return Ok(out),
+            _ => {}
+        }
+    }
+}
+
+/// The whitespace that starts the line `at` is on.
+fn indent_at(doc: &str, at: usize) -> &str {
+    let line = doc[..at].rfind('\n').map_or(0, |i| i + 1);
+    let rest = &doc[line..at];
+    &rest[..rest.len() - rest.trim_start().len()]
+}
+
+fn inertial_xml(i: &Inertial, indent: &str) -> String {
+    let [ixx, ixy, ixz, iyy, iyz, izz] = i.inertia;
+    let (x, r) = (i.origin.xyz, i.origin.rpy);
+    format!(
+        "<inertial>\n{indent}  <origin xyz=\"{:?} {:?} {:?}\" rpy=\"{:?} {:?} {:?}\"/>\n{indent}  <mass value=\"{:?}\"/>\n\
+         {indent}  <inertia ixx=\"{ixx:?}\" ixy=\"{ixy:?}\" ixz=\"{ixz:?}\" iyy=\"{iyy:?}\" iyz=\"{iyz:?}\" \
+         izz=\"{izz:?}\"/>\n{indent}</inertial>",
+        x[0], x[1], x[2], r[0], r[1], r[2], i.mass
+    )
+}
+
+/// The edit that puts `text(indent)` in place of `element`'s child `child`, or appends it as a new last child.
+fn put(
+    document: &str,
+    element: &Element,
+    child: &str,
+    text: impl Fn(&str) -> String,
+) -> Option<(std::ops::Range<usize>, String)> {
+    if let Some((_, range)) = element.children.iter().find(|(t, _)| t == child) {
+        return Some((range.clone(), text(indent_at(document, range.start))));
+    }
+    let close = element.close?;
+    let indent = format!("{}  ", indent_at(document, element.start));
+    // Before the closing tag's own indentation, so that it keeps it.
+    let at = document[..close].trim_end_matches([' ', '\t']).len();
+    Some((at..at, format!("{indent}{}\n", text(&indent))))
+}
+
+/// `i` with the entries that are only the subtraction's rounding (below 1e-14 of the largest of their kind, e.g. a
+/// product of inertia of 1e-22 next to moments of 1e-4) set to zero, as the document would state them.
+fn without_residue(mut i: Inertial) -> Inertial {
+    fn clean(v: &mut [f64]) {
+        let scale = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        v.iter_mut().filter(|x| x.abs() < 1e-14 * scale).for_each(|x| *x = 0.0);
+    }
+    clean(&mut i.origin.xyz);
+    clean(&mut i.inertia);
+    i
+}
+
+fn difference(a: &Inertia, b: &Inertia) -> Inertia {
+    Inertia { mass: a.mass - b.mass, h: a.h - b.h, i_o: a.i_o - b.i_o }
+}
+
+/// `document` (the URDF `source`, with the kinematics of `model`) with `model`'s inertia and friction written into
+/// it, and notes on what could not be written as asked. Everything but the moving links' `<inertial>` and the moving
+/// joints' `<dynamics>` is kept as it was.
+pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec<String>), ModelError> {
+    let err = |problem| ModelError { source_name: source.to_string(), problem };
+    let original = parse(document, source)?;
+    let names = |m: &Model| m.joints().iter().map(|j| j.name.clone()).collect::<Vec<_>>();
+    if names(&original) != names(model) {
+        return Err(err(ModelProblem::Parse(format!(
+            "its moving joints ({}) are not those of the robot estimated ({})",
+            names(&original).join(", "),
+            names(model).join(", ")
+        ))));
+    }
+    let robot = urdf_rs::read_from_string(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
+    let elements = elements(document).map_err(|e| err(ModelProblem::Parse(e)))?;
+    let find = |tag: &str, name: &str| elements.iter().find(|e| e.tag == tag && e.name == name);
+    let mut edits: Vec<(std::ops::Range<usize>, String)> = Vec::new();
+    let mut notes = Vec::new();
+    let fixed_children: HashMap<&str, Vec<&str>> =
+        robot.joints.iter().filter(|j| j.joint_type == urdf_rs::JointType::Fixed).fold(HashMap::new(), |mut m, j| {
+            m.entry(j.parent.link.as_str()).or_default().push(j.child.link.as_str());
+            m
+        });
+    for (k, (joint, link)) in model.joints().iter().zip(model.links()).enumerate() {
+        let element = find("joint", &joint.name).ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
+        let f = joint.friction;
+        edits.extend(put(document, element, "dynamics", |_| {
+            format!("<dynamics damping=\"{:?}\" friction=\"{:?}\"/>", f.viscous, f.coulomb)
+        }));
+
+        let name = &original.links()[k].name;
+        let element = find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
+        // The links welded to this one, as the document has them.
+        let mut welded = Vec::new();
+        let mut stack = vec![name.as_str()];
+        while let Some(l) = stack.pop() {
+            for c in fixed_children.get(l).into_iter().flatten() {
+                welded.push(*c);
+                stack.push(c);
+            }
+        }
+        let own_in_document = robot
+            .links
+            .iter()
+            .find(|l| &l.name == name)
+            .map(|l| convert_inertial(&l.inertial))
+            .filter(|i| i.mass > 0.0)
+            .map_or(Inertia::ZERO, |i| i.spatial());
+        let children = difference(&original.links()[k].inertial.spatial(), &own_in_document);
+        let inertial = if children.mass <= 0.0 {
+            link.inertial.clone()
+        } else {
+            let own = difference(&link.inertial.spatial(), &children);
+            match check_physical(&own) {
+                Ok(()) => without_residue(Inertial::from_spatial(&own)),
+                Err(why) => {
+                    // The estimate cannot be split: it all goes on the link, and the welded links' inertia is removed
+                    // so that no loader counts it twice.
+                    notes.push(format!(
+                        "link '{name}': the estimate less its welded links ({}) is not a body ({why}); the whole \
+                         estimate is written on '{name}' and their <inertial> elements are removed",
+                        welded.join(", ")
+                    ));
+                    for w in &welded {
+                        if let Some(range) = find("link", w)
+                            .and_then(|e| e.children.iter().find(|(t, _)| t == "inertial").map(|(_, r)| r.clone()))
+                        {
+                            edits.push((range, String::new()));
+                        }
+                    }
+                    link.inertial.clone()
+                }
+            }
+        };
+        edits.extend(put(document, element, "inertial", |indent| inertial_xml(&inertial, indent)));
+    }
+    edits.sort_by_key(|(range, _)| std::cmp::Reverse(range.start));
+    let mut out = document.to_string();
+    for (range, text) in edits {
+        out.replace_range(range, &text);
+    }
+    Ok((out, notes))
+}
