@@ -600,3 +600,76 @@ fn pruned_partitions_merge_into_the_caches_and_model_of_the_single_host_run() {
     ok(o);
     assert!(c.join("model.safetensors").exists());
 }
+
+/// The live display on a real terminal (a pty from util-linux `script`, 80 columns): the bar line is cut to the
+/// width instead of wrapping, the worker spinners turn, and after Ctrl-C the bar stays at the jobs recorded.
+#[test]
+fn the_display_fits_the_terminal_and_an_interrupted_bar_stays_where_the_ledger_is() {
+    if Command::new("script").arg("--version").output().is_err() {
+        eprintln!("skipped: no `script` (util-linux) to make a terminal");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (out, typescript) = (dir.path().join("run"), dir.path().join("typescript"));
+    let command = format!(
+        "stty cols 80 rows 30; exec {EXE} generate --out {} --robots 12 --trajectories 16 --workers 2 --seed 5",
+        out.display()
+    );
+    let mut script = Command::new("script")
+        .args(["-qfec", &command, typescript.to_str().unwrap()])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let recorded = || std::fs::read_to_string(out.join("ledger.tsv")).map_or(0, |l| l.lines().count());
+    let start = Instant::now();
+    while recorded() < 10 {
+        assert!(start.elapsed() < Duration::from_secs(120), "no progress");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // `script` runs a shell that execs dynforge: its child is the coordinator.
+    let coordinator = children_of(script.id())
+        .into_iter()
+        .find(|&p| std::fs::read_to_string(format!("/proc/{p}/cmdline")).unwrap_or_default().contains("generate"))
+        .expect("the coordinator runs under script");
+    assert!(Command::new("kill").args(["-INT", &coordinator.to_string()]).status().unwrap().success());
+    assert_eq!(script.wait().unwrap().code(), Some(1), "an interrupted run exits non-zero");
+
+    // What the terminal was sent, as the lines it showed: cursor movements end a line, other escapes draw nothing.
+    let raw = String::from_utf8_lossy(&std::fs::read(&typescript).unwrap()).to_string();
+    let mut text = String::new();
+    let mut chars = raw.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c != '\x1b' {
+            text.push(c);
+            continue;
+        }
+        if chars.next_if_eq(&'[').is_some() {
+            let mut last = ' ';
+            while let Some(d) = chars.next() {
+                last = d;
+                if d.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+            if "ABEFGH".contains(last) {
+                text.push('\n');
+            }
+        }
+    }
+    let spinner = |c: char| ('\u{2800}'..='\u{28ff}').contains(&c);
+    let frames: Vec<&str> = text.split(['\r', '\n']).filter(|l| l.contains(" jobs, ETA ")).collect();
+    assert!(!frames.is_empty(), "no progress bar drawn:\n{text}");
+    for f in &frames {
+        // From the bar's start (a message printed above it may share the line's bytes) to the first spinner.
+        let from = f.find(['█', '░']).unwrap_or(0);
+        let bar = f[from..].split(spinner).next().unwrap();
+        assert!(bar.chars().count() <= 80, "a bar line wider than the terminal: {bar:?}");
+    }
+    let glyphs: BTreeSet<char> = text.chars().filter(|&c| spinner(c)).collect();
+    assert!(glyphs.len() >= 2, "the worker spinners never moved: {glyphs:?}");
+    let last = frames.last().unwrap();
+    let shown: usize =
+        last.split(" jobs").next().unwrap().rsplit(' ').next().unwrap().split('/').next().unwrap().parse().unwrap();
+    assert!(shown < 192 && shown == recorded(), "the bar ended at {shown}/192, the ledger has {}: {last}", recorded());
+}

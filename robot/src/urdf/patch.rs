@@ -161,7 +161,8 @@ pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec
             m
         });
     for (k, (joint, link)) in model.joints().iter().zip(model.links()).enumerate() {
-        let element = find("joint", &joint.name).ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
+        let element =
+            find("joint", &joint.name).ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
         let f = joint.friction;
         edits.extend(put(document, element, "dynamics", |_| {
             format!("<dynamics damping=\"{:?}\" friction=\"{:?}\"/>", f.viscous, f.coulomb)
