@@ -646,7 +646,7 @@ fn the_display_fits_the_terminal_and_an_interrupted_bar_stays_where_the_ledger_i
         }
         if chars.next_if_eq(&'[').is_some() {
             let mut last = ' ';
-            while let Some(d) = chars.next() {
+            for d in chars.by_ref() {
                 last = d;
                 if d.is_ascii_alphabetic() {
                     break;
@@ -672,4 +672,53 @@ fn the_display_fits_the_terminal_and_an_interrupted_bar_stays_where_the_ledger_i
     let shown: usize =
         last.split(" jobs").next().unwrap().rsplit(' ').next().unwrap().split('/').next().unwrap().parse().unwrap();
     assert!(shown < 192 && shown == recorded(), "the bar ended at {shown}/192, the ledger has {}: {last}", recorded());
+}
+
+/// What a monitor reads of a live run that resumed most of its jobs: the pool is counted after the freed workers got
+/// their next job (never one idle worker while jobs wait), and the rate counts this run's jobs only, so the ETA does
+/// not take the resumed ones for instant progress.
+#[test]
+fn a_resumed_runs_live_status_shows_a_full_pool_and_its_own_rate() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = generate_args(dir.path(), "12", "16", &["--workers", "2"]);
+    let mut first = spawn(&args);
+    wait_for_entries(dir.path(), 120, &mut first);
+    kill(first.id(), "-INT");
+    assert!(!first.wait().unwrap().success(), "an interrupted run exits non-zero");
+    let resumed = ledger_entries(dir.path()).len() as u64;
+    assert!(resumed < 192, "the run finished before it was interrupted");
+
+    let mut run = spawn(&args);
+    let start = Instant::now();
+    let mut samples = Vec::new();
+    while run.try_wait().unwrap().is_none() && start.elapsed() < Duration::from_secs(120) {
+        let out = dynforge(&["status", dir.path().to_str().unwrap(), "--json"]);
+        let Ok(v) = serde_json::from_slice::<serde_json::Value>(&out.stdout) else { continue };
+        if v["live"] == true && v.get("in_flight").is_some() {
+            samples.push((start.elapsed().as_secs_f64(), v));
+        }
+    }
+    assert!(run.wait().unwrap().success());
+    assert_exactly_once(dir.path(), 192);
+    let n = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap();
+    let finished = |v: &serde_json::Value| n(v, "done") + n(v, "discarded") + n(v, "failed");
+    // Once every worker has reported a job (so both are connected) and while at least two jobs are left.
+    let steady: Vec<_> = samples
+        .iter()
+        .filter(|(_, v)| finished(v) >= resumed as f64 + 2.0 && n(v, "total") - finished(v) >= 2.0)
+        .collect();
+    assert!(steady.len() >= 3, "too few live samples: {samples:?}");
+    for (t, v) in &steady {
+        assert_eq!(n(v, "workers_alive"), 2.0, "{v}");
+        assert_eq!(n(v, "in_flight"), 2.0, "a worker shown idle while jobs wait: {v}");
+        // This run's rate is (finished - resumed) / its own time, at most the monitor's time t (it started later);
+        // counting the resumed jobs it would exceed resumed / t. While few new jobs are done the two are far apart.
+        let new = finished(v) - resumed as f64;
+        if new <= resumed as f64 / 4.0 {
+            let rate = n(v, "rate_per_s");
+            assert!(rate < resumed as f64 / t, "the rate counts resumed jobs: {rate} jobs/s at {t:.2} s, {v}");
+            let eta = n(v, "eta_s");
+            assert!((eta * rate - (n(v, "total") - finished(v))).abs() < 1e-6 * n(v, "total"), "{v}");
+        }
+    }
 }

@@ -111,7 +111,7 @@ fn shards_read_on_all_cores_join_in_path_order() {
 fn an_interrupted_build_is_an_error_and_caches_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let (spec, features) = run_dir(dir.path(), 1);
-    let e = load_or_build(dir.path(), &spec, &features, |_, _| false).err().expect("stopped");
+    let e = load_or_build(dir.path(), &spec, &features, |_, _| false).expect_err("stopped");
     assert!(e.to_string().contains("interrupted while reading the shards; nothing was cached"), "{e}");
     assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit, "a partial cache was written");
 }

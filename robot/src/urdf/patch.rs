@@ -188,7 +188,7 @@ pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec
             .map_or(Inertia::ZERO, |i| i.spatial());
         let children = difference(&original.links()[k].inertial.spatial(), &own_in_document);
         let inertial = if children.mass <= 0.0 {
-            link.inertial.clone()
+            link.inertial
         } else {
             let own = difference(&link.inertial.spatial(), &children);
             match check_physical(&own) {
@@ -208,7 +208,7 @@ pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec
                             edits.push((range, String::new()));
                         }
                     }
-                    link.inertial.clone()
+                    link.inertial
                 }
             }
         };
