@@ -67,6 +67,9 @@ pub struct RecipeArgs {
     /// Physics: robots drawn from the generator per epoch (paired with real windows' excitation; never simulated).
     #[arg(long)]
     pub generated: Option<usize>,
+    /// Physics: train on generated robots only; the dataset's windows give the excitations and the validation.
+    #[arg(long)]
+    pub generated_only: bool,
 }
 
 impl RecipeArgs {
@@ -90,6 +93,7 @@ impl RecipeArgs {
         t.seed = self.seed;
         r.validation = self.validation;
         r.generated_per_epoch = self.generated.unwrap_or(r.generated_per_epoch);
+        r.generated_only = self.generated_only;
         r
     }
 }

@@ -294,6 +294,20 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     // The generator's prior: 72 parameters, 30 directions.
     assert_eq!(ck["prior"]["mean"].as_array().unwrap().len(), 72);
     assert_eq!(ck["prior"]["factor"].as_array().unwrap().len(), 72 * 30);
+    assert_eq!(ck["examples"], serde_json::json!({"generated_per_epoch": 4096, "real": true}));
+    // A resume may change what it trains on, and says so (the checkpoint records the examples when it is saved).
+    let mut more = vec!["train", d, "--out", run.to_str().unwrap(), "--resume", "--generated-only"];
+    more.extend(["--epochs", "3", "--generated", "2048", "--dim", "64", "--validation", "0.34"]);
+    let o = dynforge(&more);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = stderr(&o);
+    assert!(
+        said.contains("examples changed: generated robots per epoch 4096 -> 2048, real examples trained on -> left out")
+            && said.contains("0 real training examples"),
+        "{said}"
+    );
+    let epochs = std::fs::read_to_string(run.join("metrics.csv")).unwrap().lines().count() - 1;
+    assert_eq!(epochs, 3, "the resumed run trained its third epoch");
 
     let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "3", "--identify-robots", "2"]));
     assert!(out.contains("Overall") && out.contains("Per robot") && out.contains("Identification"), "{out}");

@@ -66,6 +66,10 @@ pub struct Checkpoint {
     /// The generator's parameter prior the physics estimator reads evidence against (`None` for the transformer).
     #[serde(default)]
     pub prior: Option<PriorRecord>,
+    /// What the physics estimator trains on besides the prior (`None` for the transformer and for checkpoints
+    /// written before it was recorded): a resumed run says when it changes.
+    #[serde(default)]
+    pub examples: Option<ExampleRecord>,
     /// Kept input columns and their standardisation.
     pub columns: Vec<usize>,
     pub mean: Vec<f64>,
@@ -81,6 +85,15 @@ pub struct Checkpoint {
     /// Epoch the weights come from, and its validation loss (none before the first epoch ends).
     pub epoch: usize,
     pub validation_loss: Option<f64>,
+}
+
+/// The physics estimator's training examples as stored.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ExampleRecord {
+    /// Robots drawn from the generator per epoch.
+    pub generated_per_epoch: usize,
+    /// Whether the dataset's training windows, recordings and robots were trained on too.
+    pub real: bool,
 }
 
 /// A [`ParameterPrior`] as stored.
@@ -116,6 +129,7 @@ impl Checkpoint {
             joints,
             features: features.map_or(Vec::new(), |f| f.entries.iter().map(|e| e.name.clone()).collect()),
             prior: None,
+            examples: None,
             columns: s.columns.clone(),
             mean: s.mean.clone(),
             std: s.std.clone(),

@@ -52,7 +52,7 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     // One validation robot of the three.
     let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
     let split = (0..100).map(|s| (s, 0.3)).find(|&sf| (0..3).filter(|&r| validation(sf, r)).count() == 1).unwrap();
-    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, per_epoch: 16384 };
+    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, per_epoch: 16384, real: true };
     let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
     let model = PhysicsConfig { hidden: 128, layers: 2, ..PhysicsConfig::new(examples.shape()[1]) };
     let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, vec![], None, examples.standardizer());
@@ -93,4 +93,36 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     // The rest is what the generator's distribution implies, which the labels of the Gaussian posterior's mean
     // (the plug-in estimate the map starts from) miss: the map does better overall (measured 0.967 vs 0.948).
     assert!(s.r2 > p.r2 + 0.005 && s.r2 > 0.9, "overall R2 {:.4}, plug-in {:.4}", s.r2, p.r2);
+}
+
+/// `--generated-only`: the training examples are exactly the generated robots of the run that also trains on the
+/// dataset's examples (same draws, same standardisation), and validation is unchanged.
+#[test]
+fn generated_only_leaves_out_the_real_examples_and_nothing_else() {
+    let cfg = GeneratorConfig::default();
+    let prior = generator_prior(&cfg, 41).unwrap();
+    let shards = tempfile::tempdir().unwrap();
+    let mut set = PhysicsSet::new(WindowSpec::default(), prior.rank());
+    for robot in 0..2 {
+        for trajectory in 0..2 {
+            let (path, _) = common::write_shard(&Job { seed: 4, robot, trajectory }, shards.path());
+            set.add(&read(&path, None).unwrap(), &prior).unwrap();
+        }
+    }
+    let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
+    let split = (0..100).map(|s| (s, 0.5)).find(|&sf| validation(sf, 0) != validation(sf, 1)).unwrap();
+    let examples = |real: bool| {
+        let source = PhysicsSource { generator: cfg.clone(), seed: 99, per_epoch: 48, real };
+        let mut e = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
+        e.begin_epoch(2);
+        e
+    };
+    let (both, generated) = (examples(true), examples(false));
+    let real = both.train_len() - generated.train_len();
+    assert!(real > 0 && both.real() == real && generated.real() == 0, "{real} real examples");
+    assert!(generated.train_len() > 40, "{} of 48 generated robots drawn", generated.train_len());
+    for k in 0..generated.train_len() {
+        assert_eq!(generated.train_batch(&[k]), both.train_batch(&[real + k]), "generated example {k}");
+    }
+    assert_eq!(generated.validation(), both.validation());
 }

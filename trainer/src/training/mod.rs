@@ -156,6 +156,10 @@ pub trait Examples: Sync {
     /// Prepares epoch `epoch` (e.g. draws its generated examples); called before its first batch, also on resume.
     fn begin_epoch(&mut self, _epoch: usize) {}
     fn train_len(&self) -> usize;
+    /// Training examples an epoch will have, known before [`Examples::begin_epoch`] draws any.
+    fn planned_train_len(&self) -> usize {
+        self.train_len()
+    }
     fn validation_len(&self) -> usize;
     /// Standardised inputs and targets of training examples `ids` (`0..train_len()`), concatenated.
     fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>);
@@ -366,10 +370,10 @@ pub fn train<E: Examples>(
     observer: &mut dyn TrainObserver,
     stop: &AtomicBool,
 ) -> Result<TrainSummary, TrainError> {
-    if examples.train_len() == 0 || examples.validation_len() == 0 {
+    if examples.planned_train_len() == 0 || examples.validation_len() == 0 {
         return Err(TrainError::Setup(format!(
             "{} training and {} validation examples: both splits need windows (more robots, or another validation fraction)",
-            examples.train_len(),
+            examples.planned_train_len(),
             examples.validation_len()
         )));
     }

@@ -28,6 +28,10 @@ pub struct PhysicsSource {
     pub seed: u64,
     /// Generated robots per epoch.
     pub per_epoch: usize,
+    /// Whether the dataset's own training examples are trained on besides the generated ones. Without them the
+    /// network cannot memorise the real examples (they are few next to the generator's stream) and the dataset's
+    /// simulations serve only as excitations and for validation.
+    pub real: bool,
 }
 
 /// Generated examples the input statistics are fitted to, besides the real ones.
@@ -146,9 +150,13 @@ impl PhysicsExamples {
         &self.prior
     }
 
-    /// Real training examples (windows, recordings and robots).
+    /// Real training examples (windows, recordings and robots) trained on.
     pub fn real(&self) -> usize {
-        self.real_y.len()
+        self.real_len()
+    }
+
+    fn real_len(&self) -> usize {
+        if self.source.real { self.real_y.len() } else { 0 }
     }
 
     /// The excitation of generated example `k`: of the kind `k mod 3`, picked by `rng`.
@@ -215,7 +223,11 @@ impl Examples for PhysicsExamples {
     }
 
     fn train_len(&self) -> usize {
-        self.real_y.len() + self.drawn_y.len()
+        self.real_len() + self.drawn_y.len()
+    }
+
+    fn planned_train_len(&self) -> usize {
+        self.real_len() + self.source.per_epoch
     }
 
     fn validation_len(&self) -> usize {
@@ -227,7 +239,7 @@ impl Examples for PhysicsExamples {
         let mut x = Vec::with_capacity(ids.len() * w);
         let mut y = Vec::with_capacity(ids.len() * NUM_LABELS);
         for &i in ids {
-            let (xs, label) = match i.checked_sub(self.real_y.len()) {
+            let (xs, label) = match i.checked_sub(self.real_len()) {
                 None => (&self.real_x[i * w..(i + 1) * w], &self.real_y[i]),
                 Some(d) => (&self.drawn_x[d * w..(d + 1) * w], &self.drawn_y[d]),
             };

@@ -11,7 +11,7 @@ use dynforge_recording::dataset::{ShardFollower, dataset_robot, generator, shard
 
 use super::physics::{PhysicsExamples, PhysicsSource};
 use super::{Corpus, Examples, TrainConfig, TrainError, TrainObserver, TrainSummary, resumable, train};
-use crate::checkpoint::{Checkpoint, CheckpointError, PriorRecord};
+use crate::checkpoint::{Checkpoint, CheckpointError, ExampleRecord, PriorRecord};
 use crate::data::cache::{CachedWindows, load_or_build};
 use crate::data::features::JacobianFeatures;
 use crate::data::normalize::{Standardizer, split_windows};
@@ -83,6 +83,9 @@ pub struct Recipe {
     pub validation: f64,
     /// Robots drawn from the generator per epoch (physics estimator).
     pub generated_per_epoch: usize,
+    /// Physics estimator: train on the generated robots only, the dataset's windows serving as excitations and
+    /// for validation.
+    pub generated_only: bool,
 }
 
 impl Recipe {
@@ -100,8 +103,23 @@ impl Recipe {
             train,
             validation: 0.2,
             generated_per_epoch: 32_768,
+            generated_only: false,
         }
     }
+}
+
+/// What differs between two example settings, as `generated robots per epoch 32768 -> 65536, real examples
+/// trained on -> left out`.
+fn examples_changed(was: &ExampleRecord, now: &ExampleRecord) -> String {
+    let used = |real: bool| if real { "trained on" } else { "left out" };
+    let mut changed = Vec::new();
+    if was.generated_per_epoch != now.generated_per_epoch {
+        changed.push(format!("generated robots per epoch {} -> {}", was.generated_per_epoch, now.generated_per_epoch));
+    }
+    if was.real != now.real {
+        changed.push(format!("real examples {} -> {}", used(was.real), used(now.real)));
+    }
+    changed.join(", ")
 }
 
 /// Progress of a session beyond the training loop's.
@@ -400,14 +418,22 @@ impl Session<'_> {
             prior.rank(),
             if set.hit { "from the cache" } else { "computed and cached" }
         ));
+        let record =
+            ExampleRecord { generated_per_epoch: self.recipe.generated_per_epoch, real: !self.recipe.generated_only };
         let source = PhysicsSource {
             generator: generator_cfg.clone(),
             seed: draw_seed(seed, Draw::Synthetic),
-            per_epoch: self.recipe.generated_per_epoch,
+            per_epoch: record.generated_per_epoch,
+            real: record.real,
         };
         let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).map_err(SessionError::Setup)?;
-        let checkpoint = match previous {
-            Some(c) => c,
+        let mut checkpoint = match previous {
+            Some(c) => {
+                if let Some(was) = c.examples.filter(|was| *was != record) {
+                    observer.message(&format!("examples changed: {} from here", examples_changed(&was, &record)));
+                }
+                c
+            }
             None => {
                 let model = self.recipe.model.physics(examples.shape()[1]);
                 model.check().map_err(TrainError::from)?;
@@ -419,6 +445,7 @@ impl Session<'_> {
                 c
             }
         };
+        checkpoint.examples = Some(record);
         observer.message(&format!(
             "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
              validation windows",
