@@ -20,9 +20,7 @@ while [ $# -gt 0 ]; do
 done
 if [ "$install" = 1 ] && ! { command -v podman && command -v runc && command -v debootstrap; } >/dev/null; then
     [ "$(id -u)" = 0 ] || { echo "build.sh: --install needs root" >&2; exit 77; }
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get install -y -qq --no-install-recommends podman runc debootstrap >&2 ||
-        { apt-get update -qq >&2 && apt-get install -y -qq --no-install-recommends podman runc debootstrap >&2; }
+    "$root/deploy/apt-install.sh" podman runc debootstrap
 fi
 engine=$(command -v podman || command -v docker || true)
 if [ -z "$engine" ]; then

@@ -35,9 +35,7 @@ if [ "$(id -u)" != 0 ]; then
 fi
 if ! command -v slurmctld >/dev/null || ! command -v munged >/dev/null; then
     say "installing slurm-wlm and munge"
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq >&2
-    apt-get install -y -qq --no-install-recommends slurm-wlm munge >&2
+    "$(dirname "$0")/../apt-install.sh" slurm-wlm munge
 fi
 
 # munge: the key, then the daemon as its own user.
