@@ -302,8 +302,9 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     assert!(o.status.success(), "{}", stderr(&o));
     let said = stderr(&o);
     assert!(
-        said.contains("examples changed: generated robots per epoch 4096 -> 2048, real examples trained on -> left out")
-            && said.contains("0 real training examples"),
+        said.contains(
+            "examples changed: generated robots per epoch 4096 -> 2048, real examples trained on -> left out"
+        ) && said.contains("0 real training examples"),
         "{said}"
     );
     let epochs = std::fs::read_to_string(run.join("metrics.csv")).unwrap().lines().count() - 1;
@@ -337,6 +338,9 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         "--json",
     ]));
     let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    // A simulated log's residual is far under the noise floor: its evidence is weighted as in training.
+    let noise: Vec<f64> = v["torque_noise"].as_array().unwrap().iter().map(|n| n.as_f64().unwrap()).collect();
+    assert!(noise.len() == 6 && noise.iter().all(|&n| n < 1e-4), "{noise:?}");
     let refined = v["refinement"]["torque_nrmse_refined"].as_f64().unwrap();
     assert!(refined < 1e-2, "{v}");
     let truth = dynforge_recording::read(&validation_shard, None).unwrap().labels.unwrap();

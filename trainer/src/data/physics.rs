@@ -93,12 +93,45 @@ pub fn dataset_prior(dir: &Path) -> Result<ParameterPrior, PhysicsError> {
 }
 
 /// The evidence of each window of `rec` (in [`WindowSpec::windows`] order) and of the whole recording, each with
-/// every joint's noise at [`NOISE_FLOOR`] of its own torques there.
+/// every joint's noise at [`NOISE_FLOOR`] of its own torques there: simulated data, whose torques the regressor
+/// explains to ~1e-7.
 pub fn recording_evidence(
     rec: &Recording,
     prior: &ParameterPrior,
     spec: &WindowSpec,
 ) -> Result<(Vec<Evidence>, Evidence), PhysicsError> {
+    let m = evidence_of(rec, prior, spec, false)?;
+    Ok((m.windows, m.whole))
+}
+
+/// A log's evidence weighted by its own noise.
+#[derive(Debug, Clone)]
+pub struct MeasuredEvidence {
+    pub windows: Vec<Evidence>,
+    pub whole: Evidence,
+    /// Each joint's torque noise as an NRMSE: the residual the prior's parameters leave, relative to the torque's
+    /// standard deviation (~1e-7 on simulated data; 0 where the joint never moved).
+    pub noise: Vec<f64>,
+}
+
+/// [`recording_evidence`] for a log that may be noisier than simulated data (a real robot's): each joint's noise is
+/// the larger of the floor and the residual the whole recording leaves ([`LatentSums::measured_noise`]), for the
+/// windows too (too short to tell noise from signal alone). On simulated data the residual is under the floor and
+/// nothing changes.
+pub fn measured_evidence(
+    rec: &Recording,
+    prior: &ParameterPrior,
+    spec: &WindowSpec,
+) -> Result<MeasuredEvidence, PhysicsError> {
+    evidence_of(rec, prior, spec, true)
+}
+
+fn evidence_of(
+    rec: &Recording,
+    prior: &ParameterPrior,
+    spec: &WindowSpec,
+    measure: bool,
+) -> Result<MeasuredEvidence, PhysicsError> {
     let bad = |source| PhysicsError::Identify { file: rec.path.display().to_string(), source };
     let len = rec.trajectory.len();
     let block = spec.block();
@@ -110,8 +143,18 @@ pub fn recording_evidence(
         }
         s
     };
-    let windows = spec.windows(len).iter().map(|w| sum(spec.samples(w, len)).evidence(NOISE_FLOOR)).collect();
-    Ok((windows, sum(0..len).evidence(NOISE_FLOOR)))
+    let all = sum(0..len);
+    let variance = match measure {
+        true => all.measured_noise(NOISE_FLOOR).map_err(bad)?,
+        false => vec![0.0; rec.model.dof()],
+    };
+    let noise = variance.iter().zip(all.torque_std()).map(|(v, std)| if std > 0.0 { v.sqrt() / std } else { 0.0 });
+    let evidence = |s: LatentSums| s.evidence_with_noise(NOISE_FLOOR, &variance);
+    Ok(MeasuredEvidence {
+        windows: spec.windows(len).iter().map(|w| evidence(sum(spec.samples(w, len)))).collect(),
+        whole: evidence(all),
+        noise: noise.collect(),
+    })
 }
 
 /// Pieces of evidence with their robot and labels, stored flat.

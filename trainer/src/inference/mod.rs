@@ -17,7 +17,7 @@ use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::data::cache::CachedWindows;
 use crate::data::dataset::{row_width, windows};
 use crate::data::features::JacobianFeatures;
-use crate::data::physics::{features, recording_evidence};
+use crate::data::physics::{features, measured_evidence};
 use crate::model::Network;
 use crate::training::predict;
 pub use physics::{normal_equations, physical_parameters, recording_error};
@@ -41,7 +41,13 @@ pub struct Estimate {
     /// Standard deviation of the per-window predictions [SI] (0 with one window).
     pub spread: [f64; NUM_LABELS],
     pub windows: usize,
+    /// Physics estimator: each joint's torque noise as an NRMSE, as the logs' residuals show it (the largest over
+    /// the logs; the evidence is weighted by it). Empty for the transformer.
+    pub noise: Vec<f64>,
 }
+
+/// The evidence of a whole recording and each joint's torque noise (NRMSE) it was weighted by.
+pub type WholeRecording = (Evidence, Vec<f64>);
 
 /// An estimate refined by physics.
 #[derive(Debug, Clone)]
@@ -141,20 +147,20 @@ impl Predictor {
     }
 
     /// Per-window predictions [SI] of a recording (windows in `WindowSpec::windows` order), and for the physics
-    /// estimator the evidence of the whole recording.
+    /// estimator the evidence of the whole recording and each joint's torque noise (NRMSE).
     pub fn windows(
         &self,
         dir: &Path,
         rec: &Recording,
-    ) -> Result<(Vec<[f64; NUM_LABELS]>, Option<Evidence>), InferenceError> {
+    ) -> Result<(Vec<[f64; NUM_LABELS]>, Option<WholeRecording>), InferenceError> {
         let features = self.check(dir, rec)?;
         let spec = self.checkpoint.window_spec();
         if let Some(prior) = &self.prior {
-            let (per_window, whole) = recording_evidence(rec, prior, &spec).map_err(|e| InferenceError::Recording {
+            let m = measured_evidence(rec, prior, &spec).map_err(|e| InferenceError::Recording {
                 file: rec.path.display().to_string(),
                 problem: e.to_string(),
             })?;
-            return Ok((self.predict_evidence(&per_window)?, Some(whole)));
+            return Ok((self.predict_evidence(&m.windows)?, Some((m.whole, m.noise))));
         }
         let (count, data) = windows(rec, &spec, &features);
         let w = CachedWindows {
@@ -175,10 +181,13 @@ impl Predictor {
     pub fn estimate(&self, dir: &Path, recs: &[&Recording]) -> Result<Estimate, InferenceError> {
         let mut per_window = Vec::new();
         let mut whole: Option<Evidence> = None;
+        let mut noise: Vec<f64> = Vec::new();
         for rec in recs {
             let (w, e) = self.windows(dir, rec)?;
             per_window.extend(w);
-            if let Some(e) = e {
+            if let Some((e, n)) = e {
+                noise.resize(n.len(), 0.0);
+                noise.iter_mut().zip(&n).for_each(|(a, b)| *a = a.max(*b));
                 match &mut whole {
                     Some(sum) => sum.add(&e),
                     None => whole = Some(e),
@@ -193,7 +202,7 @@ impl Predictor {
             Some(e) => self.predict_evidence(&[e])?[0],
             None => mean,
         };
-        Ok(Estimate { labels, spread, windows: per_window.len() })
+        Ok(Estimate { labels, spread, windows: per_window.len(), noise })
     }
 
     /// The estimate `e` of the recording `p` refined by physics: the labels that best explain the recording's

@@ -82,7 +82,7 @@ impl EstimateReport {
             })
         });
         serde_json::json!({
-            "windows": e.windows, "parameters": parameters, "refinement": refined, "projections": self.projections,
+            "windows": e.windows, "torque_noise": e.noise, "parameters": parameters, "refinement": refined, "projections": self.projections,
             "notes": self.notes, "urdf": self.urdf,
         })
     }
@@ -92,6 +92,14 @@ impl std::fmt::Display for EstimateReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let e = &self.estimate;
         writeln!(f, "{}: {} windows", self.log.display(), e.windows)?;
+        if !e.noise.is_empty() {
+            let joints: Vec<String> = e.noise.iter().map(|n| format!("{n:.1e}")).collect();
+            writeln!(
+                f,
+                "torque noise per joint (NRMSE of the residual; the evidence is weighted by it): {}",
+                joints.join(" ")
+            )?;
+        }
         writeln!(f, "{:<12} {:>12} {:>12} {:>12}  unit", "parameter", "estimate", "estimator", "spread")?;
         for (k, l) in LABELS.iter().enumerate() {
             writeln!(

@@ -1,0 +1,116 @@
+//! How the physics estimator's per-robot accuracy falls with torque noise that the simulated data do not have, and
+//! how much of it comes back when the evidence is weighted by the true noise. A sim-to-real question answered
+//! without simulating: evidence is `H = sum A^T A / s^2`, `b = sum A^T tau / s^2` at the noise floor `s`, so white
+//! torque noise of `k s` adds `N(0, k^2 H)` to `b` exactly (the regressor's own inputs stay exact). The
+//! noise-aware variant divides both by `1 + k^2`, the weights of the true noise.
+//!
+//! Usage: dynforge-bench-noise CHECKPOINT DATA [--levels 0,1e-4,1e-3,1e-2] [--logs N]
+//! (levels in units of each joint's torque RMS; --logs: recordings per robot summed, all when 0).
+
+use anyhow::{Context, Result, bail};
+use dynforge_identify::Evidence;
+use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_robot::rng::Rng;
+use dynforge_trainer::data::physics::{self, NOISE_FLOOR};
+use dynforge_trainer::data::split::{Split, split_of};
+use dynforge_trainer::inference::Predictor;
+use dynforge_trainer::metrics::score;
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// `b + k * H^(1/2) xi` for a standard normal `xi` from `rng`.
+fn noisy(e: &Evidence, k: f64, rng: &mut Rng) -> Evidence {
+    let r = e.rank;
+    let mut h = DMatrix::zeros(r, r);
+    let mut n = 0;
+    for i in 0..r {
+        for j in i..r {
+            (h[(i, j)], h[(j, i)]) = (e.h[n], e.h[n]);
+            n += 1;
+        }
+    }
+    let eig = SymmetricEigen::new(h);
+    let xi = DVector::from_fn(r, |_, _| {
+        let (u, v) = (rng.unit().max(1e-300), rng.unit());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    });
+    let scaled = DVector::from_fn(r, |i, _| eig.eigenvalues[i].max(0.0).sqrt() * xi[i]);
+    let d = &eig.eigenvectors * scaled;
+    Evidence { rank: r, h: e.h.clone(), b: e.b.iter().zip(d.iter()).map(|(b, d)| b + k * d).collect() }
+}
+
+fn weighted(e: &Evidence, w: f64) -> Evidence {
+    Evidence { rank: e.rank, h: e.h.iter().map(|x| x * w).collect(), b: e.b.iter().map(|x| x * w).collect() }
+}
+
+fn main() -> Result<()> {
+    let mut args = std::env::args().skip(1);
+    let (mut positional, mut levels, mut logs) = (Vec::new(), vec![0.0, 1e-4, 1e-3, 1e-2], 0usize);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--levels" => {
+                let v = args.next().context("--levels needs a value")?;
+                levels = v.split(',').map(|s| s.parse::<f64>()).collect::<Result<_, _>>()?;
+            }
+            "--logs" => logs = args.next().context("--logs needs a value")?.parse()?,
+            _ if a.starts_with("--") => bail!("unknown option {a}"),
+            _ => positional.push(a),
+        }
+    }
+    let [ckpt, data] = positional.as_slice() else { bail!("usage: dynforge-bench-noise CHECKPOINT DATA") };
+    let predictor = Predictor::load(ckpt.as_ref())?;
+    let c = &predictor.checkpoint;
+    let prior = c.parameter_prior().context("not a physics checkpoint")?;
+    let (set, _) = physics::load_or_build(data.as_ref(), &c.window_spec(), &prior, |_, _| true)?;
+    let validation = |r: u64| split_of(c.split_seed, r, c.validation_fraction) == Split::Validation;
+    let mut robots: std::collections::BTreeMap<u64, (Evidence, [f64; NUM_LABELS], usize)> = Default::default();
+    for i in (0..set.recordings.len()).filter(|&i| validation(set.recordings.robots[i])) {
+        let e = set.recordings.get(i);
+        let entry = robots.entry(set.recordings.robots[i]).or_insert((
+            Evidence { h: vec![0.0; e.h.len()], b: vec![0.0; e.b.len()], ..e.clone() },
+            set.recordings.labels[i],
+            0,
+        ));
+        if logs == 0 || entry.2 < logs {
+            entry.0.add(&e);
+            entry.2 += 1;
+        }
+    }
+    let truth: Vec<[f64; NUM_LABELS]> = robots.values().map(|(_, y, _)| *y).collect();
+    let scale = c.standardizer().label_std;
+    let group = |s: &dynforge_trainer::metrics::Scores, kinds: &[LabelKind]| {
+        let v: Vec<f64> =
+            (0..NUM_LABELS).filter(|&k| kinds.contains(&LABELS[k].kind)).map(|k| s.targets[k].r2).collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    println!(
+        "{} validation robots, {} logs each; noise in units of each joint's torque RMS (floor {NOISE_FLOOR:e})",
+        truth.len(),
+        if logs == 0 { "all".into() } else { logs.to_string() }
+    );
+    println!("| noise | weighting | R2 overall | friction | mass | com | inertia |");
+    println!("|---:|---|---:|---:|---:|---:|---:|");
+    for &level in &levels {
+        let k = level / NOISE_FLOOR;
+        let evidence: Vec<Evidence> =
+            robots.iter().map(|(r, (e, _, _))| noisy(e, k, &mut Rng::stream(7, &[*r, level.to_bits()]))).collect();
+        for (name, w) in [("floor (as trained)", 1.0), ("true noise", 1.0 / (1.0 + k * k))] {
+            if level == 0.0 && name == "true noise" {
+                continue;
+            }
+            let input: Vec<Evidence> = evidence.iter().map(|e| weighted(e, w)).collect();
+            let s = score(&predictor.predict_evidence(&input)?, &truth, &scale);
+            println!(
+                "| {level:e} | {name} | {:.4} | {:.4} | {:.4} | {:.4} | {:.4} |",
+                s.r2,
+                group(&s, &[LabelKind::Coulomb, LabelKind::Viscous]),
+                group(&s, &[LabelKind::Mass]),
+                group(&s, &[LabelKind::Com]),
+                group(&s, &[LabelKind::Ixx, LabelKind::Iyy, LabelKind::Izz])
+            );
+        }
+    }
+    Ok(())
+}
