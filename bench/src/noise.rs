@@ -32,10 +32,7 @@ fn noisy(e: &Evidence, k: f64, rng: &mut Rng) -> Evidence {
         }
     }
     let eig = SymmetricEigen::new(h);
-    let xi = DVector::from_fn(r, |_, _| {
-        let (u, v) = (rng.unit().max(1e-300), rng.unit());
-        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-    });
+    let xi = DVector::from_fn(r, |_, _| rng.normal());
     let scaled = DVector::from_fn(r, |i, _| eig.eigenvalues[i].max(0.0).sqrt() * xi[i]);
     let d = &eig.eigenvectors * scaled;
     Evidence { rank: r, h: e.h.clone(), b: e.b.iter().zip(d.iter()).map(|(b, d)| b + k * d).collect() }

@@ -51,6 +51,12 @@ impl Rng {
         lo + (hi - lo) * self.unit()
     }
 
+    /// Standard normal (Box-Muller, one of the pair): the noise the benches and tests put on simulated torques.
+    pub fn normal(&mut self) -> f64 {
+        let (u, v) = (self.unit().max(f64::MIN_POSITIVE), self.unit());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
+
     /// Uniform integer in [0, n).
     pub fn below(&mut self, n: usize) -> usize {
         ((self.next_u64() as u128 * n as u128) >> 64) as usize
