@@ -70,6 +70,10 @@ pub struct RecipeArgs {
     /// Physics: train on generated robots only; the dataset's windows give the excitations and the validation.
     #[arg(long)]
     pub generated_only: bool,
+    /// Physics: half the generated robots carry torque noise (1e-4 to 1e-2 of the RMS), weighted as `estimate`
+    /// weighs a noisy log, so the network has seen what a real robot's log looks like.
+    #[arg(long)]
+    pub noisy: bool,
 }
 
 impl RecipeArgs {
@@ -94,6 +98,7 @@ impl RecipeArgs {
         r.validation = self.validation;
         r.generated_per_epoch = self.generated.unwrap_or(r.generated_per_epoch);
         r.generated_only = self.generated_only;
+        r.noisy = self.noisy;
         r
     }
 }

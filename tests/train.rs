@@ -294,7 +294,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     // The generator's prior: 72 parameters, 30 directions.
     assert_eq!(ck["prior"]["mean"].as_array().unwrap().len(), 72);
     assert_eq!(ck["prior"]["factor"].as_array().unwrap().len(), 72 * 30);
-    assert_eq!(ck["examples"], serde_json::json!({"generated_per_epoch": 4096, "real": true}));
+    assert_eq!(ck["examples"], serde_json::json!({"generated_per_epoch": 4096, "real": true, "noisy": false}));
     // A resume may change what it trains on, and says so (the checkpoint records the examples when it is saved).
     let mut more = vec!["train", d, "--out", run.to_str().unwrap(), "--resume", "--generated-only"];
     more.extend(["--epochs", "3", "--generated", "2048", "--dim", "64", "--validation", "0.34"]);

@@ -261,6 +261,22 @@ impl Evidence {
         Evidence { rank, h: h.to_vec(), b }
     }
 
+    /// The evidence of the same data with white torque noise of `k` times the noise floor added to every sample, as
+    /// an estimate that measured that noise weighs it: `b + k H^(1/2) xi` (exact for white noise: `b`'s noise term
+    /// is `N(0, k^2 H)` in floor units), then both divided by the noise's variance `1 + k^2`. `xi`: `rank` standard
+    /// normal values. How the estimator learns what a noisy log's posterior looks like without simulating one.
+    pub fn with_noise(&self, k: f64, xi: &[f64]) -> Evidence {
+        let eig = nalgebra::SymmetricEigen::new(Self::unpack(self.rank, &self.h));
+        let root = DVector::from_fn(self.rank, |i, _| eig.eigenvalues[i].max(0.0).sqrt() * xi[i]);
+        let d = &eig.eigenvectors * root;
+        let w = 1.0 / (1.0 + k * k);
+        Evidence {
+            rank: self.rank,
+            h: self.h.iter().map(|x| x * w).collect(),
+            b: self.b.iter().zip(d.iter()).map(|(b, d)| (b + k * d) * w).collect(),
+        }
+    }
+
     /// Adds independent evidence (e.g. another recording's) about the same coordinates.
     pub fn add(&mut self, other: &Evidence) {
         self.h.iter_mut().zip(&other.h).for_each(|(x, y)| *x += y);
@@ -397,5 +413,29 @@ mod tests {
         // No evidence: the prior itself.
         let none = Evidence { rank: r, h: vec![0.0; packed_len(r)], b: vec![0.0; r] }.posterior().unwrap();
         assert_eq!(none, Posterior { mean: vec![0.0; r], variance: vec![1.0; r], correlation: vec![0.0; 3] });
+    }
+
+    /// `with_noise` adds `k H^(1/2) xi`: over the unit vectors `xi = e_i` the outer products of what it adds sum to
+    /// `k^2 H` (the covariance of white noise's term), and everything is divided by `1 + k^2`.
+    #[test]
+    fn noise_added_to_evidence_has_the_covariance_of_white_torque_noise() {
+        let r = 3;
+        let h = [4.0, 1.0, 0.5, 3.0, -0.2, 2.0];
+        let e = Evidence::noiseless(r, &h, &[0.3, -1.2, 2.0]);
+        let k = 7.0;
+        let w = 1.0 / (1.0 + k * k);
+        let quiet = e.with_noise(k, &[0.0; 3]);
+        for (a, b) in quiet.h.iter().chain(&quiet.b).zip(e.h.iter().chain(&e.b)) {
+            assert!((a - b * w).abs() <= 1e-15 * b.abs(), "{quiet:?}");
+        }
+        let mut sum = DMatrix::<f64>::zeros(r, r);
+        for i in 0..r {
+            let mut xi = [0.0; 3];
+            xi[i] = 1.0;
+            let d = DVector::from_iterator(r, e.with_noise(k, &xi).b.iter().zip(&quiet.b).map(|(a, b)| (a - b) / w));
+            sum += &d * d.transpose();
+        }
+        let expected = Evidence::unpack(r, &h) * (k * k);
+        assert!((sum - &expected).abs().max() <= 1e-12 * expected.abs().max(), "{expected}");
     }
 }

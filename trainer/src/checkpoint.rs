@@ -94,6 +94,9 @@ pub struct ExampleRecord {
     pub generated_per_epoch: usize,
     /// Whether the dataset's training windows, recordings and robots were trained on too.
     pub real: bool,
+    /// Whether half the generated robots carried torque noise.
+    #[serde(default)]
+    pub noisy: bool,
 }
 
 /// A [`ParameterPrior`] as stored.

@@ -3,6 +3,7 @@
 
 mod common;
 
+use std::collections::BTreeMap;
 use std::sync::atomic::AtomicBool;
 
 use dynforge_identify::Evidence;
@@ -52,7 +53,7 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     // One validation robot of the three.
     let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
     let split = (0..100).map(|s| (s, 0.3)).find(|&sf| (0..3).filter(|&r| validation(sf, r)).count() == 1).unwrap();
-    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, per_epoch: 16384, real: true };
+    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, per_epoch: 16384, real: true, noisy: false };
     let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
     let model = PhysicsConfig { hidden: 128, layers: 2, ..PhysicsConfig::new(examples.shape()[1]) };
     let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, vec![], None, examples.standardizer());
@@ -96,9 +97,10 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
 }
 
 /// `--generated-only`: the training examples are exactly the generated robots of the run that also trains on the
-/// dataset's examples (same draws, same standardisation), and validation is unchanged.
+/// dataset's examples (same draws, same standardisation), and validation is unchanged. `--noisy`: the same robots
+/// and labels, and about half of them (binomial, 48 draws: 24 +- 3.5) seen through noisy evidence.
 #[test]
-fn generated_only_leaves_out_the_real_examples_and_nothing_else() {
+fn generated_only_and_noisy_examples_change_only_what_they_say() {
     let cfg = GeneratorConfig::default();
     let prior = generator_prior(&cfg, 41).unwrap();
     let shards = tempfile::tempdir().unwrap();
@@ -111,13 +113,13 @@ fn generated_only_leaves_out_the_real_examples_and_nothing_else() {
     }
     let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
     let split = (0..100).map(|s| (s, 0.5)).find(|&sf| validation(sf, 0) != validation(sf, 1)).unwrap();
-    let examples = |real: bool| {
-        let source = PhysicsSource { generator: cfg.clone(), seed: 99, per_epoch: 48, real };
+    let examples = |real: bool, noisy: bool| {
+        let source = PhysicsSource { generator: cfg.clone(), seed: 99, per_epoch: 48, real, noisy };
         let mut e = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
         e.begin_epoch(2);
         e
     };
-    let (both, generated) = (examples(true), examples(false));
+    let (both, generated) = (examples(true, false), examples(false, false));
     let real = both.train_len() - generated.train_len();
     assert!(real > 0 && both.real() == real && generated.real() == 0, "{real} real examples");
     assert!(generated.train_len() > 40, "{} of 48 generated robots drawn", generated.train_len());
@@ -125,6 +127,30 @@ fn generated_only_leaves_out_the_real_examples_and_nothing_else() {
         assert_eq!(generated.train_batch(&[k]), both.train_batch(&[real + k]), "generated example {k}");
     }
     assert_eq!(generated.validation(), both.validation());
+
+    // Un-standardised inputs, column -> value, to compare examples across the two runs' statistics.
+    let raw = |e: &PhysicsExamples, k: usize| -> BTreeMap<usize, f64> {
+        let s = e.standardizer();
+        let x = e.train_batch(&[k]).0;
+        s.columns.iter().enumerate().map(|(i, &c)| (c, x[i] as f64 * s.std[i] + s.mean[i])).collect()
+    };
+    let noisy = examples(false, true);
+    assert_eq!(noisy.train_len(), generated.train_len());
+    let mut changed = 0;
+    for k in 0..generated.train_len() {
+        assert_eq!(noisy.train_batch(&[k]).1, generated.train_batch(&[k]).1, "example {k}: other labels");
+        let (a, b) = (raw(&noisy, k), raw(&generated, k));
+        let std = &generated.standardizer().std;
+        let differs = generated
+            .standardizer()
+            .columns
+            .iter()
+            .enumerate()
+            .any(|(i, c)| a.get(c).is_some_and(|x| (x - b[c]).abs() > 1e-3 * (std[i] + b[c].abs())));
+        changed += differs as usize;
+    }
+    let n = generated.train_len();
+    assert!((n / 2 - 11..=n / 2 + 11).contains(&changed), "{changed} of {n} examples noisy");
 }
 
 /// A log noisier than simulation (a real robot's): the residual the prior's parameters leave is measured per joint

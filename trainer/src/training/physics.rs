@@ -16,7 +16,9 @@ use dynforge_robot::rng::Rng;
 
 use super::Examples;
 use crate::data::normalize::Standardizer;
-use crate::data::physics::{Draw, EvidenceList, LABEL_COLUMNS, PhysicsSet, draw_seed, feature_width, features};
+use crate::data::physics::{
+    Draw, EvidenceList, LABEL_COLUMNS, NOISE_FLOOR, PhysicsSet, draw_seed, feature_width, features,
+};
 use crate::data::split::{Split, split_of};
 use crate::parallel::map_in_order;
 
@@ -32,7 +34,15 @@ pub struct PhysicsSource {
     /// network cannot memorise the real examples (they are few next to the generator's stream) and the dataset's
     /// simulations serve only as excitations and for validation.
     pub real: bool,
+    /// Whether half the generated robots carry torque noise (log-uniform from [`NOISY_LEVELS`]), their evidence
+    /// weighted by it as `estimate` weighs a noisy log: the posteriors of real robots' logs, which simulation alone
+    /// never shows the network.
+    pub noisy: bool,
 }
+
+/// The torque noise of noisy generated examples, relative to the torque RMS: from a good torque sensor to a motor
+/// current read through a gearbox.
+pub const NOISY_LEVELS: (f64, f64) = (1e-4, 1e-2);
 
 /// Generated examples the input statistics are fitted to, besides the real ones.
 const CALIBRATION: usize = 4096;
@@ -192,7 +202,13 @@ impl PhysicsExamples {
         let robot = generate(&self.source.generator, self.source.seed, id).ok()?.model;
         let z = self.prior.coordinates(&dynamic_parameters(&robot));
         let mut rng = Rng::stream(self.source.seed, &[0x6578_6369_7465, epoch as u64, k as u64]);
-        let e = Evidence::noiseless(self.prior.rank(), &self.excitation(k, &mut rng), &z);
+        let mut e = Evidence::noiseless(self.prior.rank(), &self.excitation(k, &mut rng), &z);
+        if self.source.noisy && rng.unit() < 0.5 {
+            let (lo, hi) = NOISY_LEVELS;
+            let level = lo * (hi / lo).powf(rng.unit());
+            let xi: Vec<f64> = (0..e.rank).map(|_| rng.normal()).collect();
+            e = e.with_noise(level / NOISE_FLOOR, &xi);
+        }
         let s = &self.standardizer;
         let f = features(&self.prior, &e, &s.label_mean, &s.label_std).ok()?;
         Some((f, labels(&robot).ok()?))

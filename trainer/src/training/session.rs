@@ -86,6 +86,8 @@ pub struct Recipe {
     /// Physics estimator: train on the generated robots only, the dataset's windows serving as excitations and
     /// for validation.
     pub generated_only: bool,
+    /// Physics estimator: half the generated robots carry torque noise, weighted as `estimate` weighs a noisy log.
+    pub noisy: bool,
 }
 
 impl Recipe {
@@ -104,6 +106,7 @@ impl Recipe {
             validation: 0.2,
             generated_per_epoch: 32_768,
             generated_only: false,
+            noisy: false,
         }
     }
 }
@@ -118,6 +121,9 @@ fn examples_changed(was: &ExampleRecord, now: &ExampleRecord) -> String {
     }
     if was.real != now.real {
         changed.push(format!("real examples {} -> {}", used(was.real), used(now.real)));
+    }
+    if was.noisy != now.noisy {
+        changed.push(format!("noisy generated robots {} -> {}", was.noisy, now.noisy));
     }
     changed.join(", ")
 }
@@ -418,13 +424,17 @@ impl Session<'_> {
             prior.rank(),
             if set.hit { "from the cache" } else { "computed and cached" }
         ));
-        let record =
-            ExampleRecord { generated_per_epoch: self.recipe.generated_per_epoch, real: !self.recipe.generated_only };
+        let record = ExampleRecord {
+            generated_per_epoch: self.recipe.generated_per_epoch,
+            real: !self.recipe.generated_only,
+            noisy: self.recipe.noisy,
+        };
         let source = PhysicsSource {
             generator: generator_cfg.clone(),
             seed: draw_seed(seed, Draw::Synthetic),
             per_epoch: record.generated_per_epoch,
             real: record.real,
+            noisy: record.noisy,
         };
         let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).map_err(SessionError::Setup)?;
         let mut checkpoint = match previous {
