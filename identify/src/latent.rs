@@ -16,7 +16,7 @@ use dynforge_robot::{Data, Model};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::samples::{REST_SPEED, for_each, row_support};
+use crate::samples::{PAIRED_NOISE_GAIN, REST_SPEED, for_each, row_support};
 use crate::solve::eigen;
 
 /// Principal directions of the prior's (standardised) covariance below this fraction of the largest variance are
@@ -189,10 +189,10 @@ impl LatentSums {
         e
     }
 
-    /// Each joint's torque noise variance as these samples show it: the mean squared residual of its torques at
-    /// the posterior mean, the posterior weighted by the noise found so far (a few rounds from the floor; the
-    /// residual is what neither the noise floor nor the prior's parameters explain: sensor noise, unmodelled
-    /// dynamics). The evidence of a log that is noisier than the floor would otherwise be believed far beyond what
+    /// Each joint's effort noise variance as these samples show it: the mean squared residual of its paired torques
+    /// at the posterior mean, times [`PAIRED_NOISE_GAIN`], the posterior weighted by the noise found so far (a few
+    /// rounds from the floor; the residual is what neither the noise floor nor the prior's parameters explain:
+    /// sensor noise, unmodelled dynamics). The evidence of a log that is noisier than the floor would otherwise be believed far beyond what
     /// it carries: with torque noise at 1e-3 of the RMS, per-robot R2 0.98 -> 0.88 (`dynforge-bench-noise`).
     pub fn measured_noise(&self, floor: f64) -> Result<Vec<f64>, IdentifyError> {
         let r = self.rank;
@@ -211,7 +211,7 @@ impl LatentSums {
                     }
                 }
                 let ue: f64 = j.ue.iter().zip(&z).map(|(u, z)| u * z).sum();
-                *v = ((j.ee - 2.0 * ue + quadratic) / j.n as f64).max(0.0);
+                *v = PAIRED_NOISE_GAIN * ((j.ee - 2.0 * ue + quadratic) / j.n as f64).max(0.0);
             }
         }
         Ok(variance)

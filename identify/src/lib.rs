@@ -28,7 +28,7 @@ pub use labels::{label_parameters, parameter_labels};
 pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};
-pub use samples::{PAIRING_REVISION, REST_SPEED, STOPPED_SPEED};
+pub use samples::{PAIRED_NOISE_GAIN, PAIRING_REVISION, REST_SPEED, STOPPED_SPEED};
 pub use solve::{LeastSquares, least_squares};
 
 /// Why an identification failed.

@@ -16,6 +16,13 @@ pub const REST_SPEED: f64 = 1e-2;
 /// 2: the viscous column pairs with the span's mean velocity, and spans where a joint stops or starts are left out.
 pub const PAIRING_REVISION: u32 = 2;
 
+/// What white noise on the logged efforts becomes after pairing: each paired torque is the mean of two consecutive
+/// efforts, so its noise has half the variance and a lag-1 correlation of 1/2, and the sums over neighbouring rows
+/// carry `1 + 2 x 1/2 = 2` times the variance the residual shows. The residual's variance times this is the
+/// effort noise itself, and the weight that tells the evidence's information right (on the log's own grid; a log
+/// resampled from a slower rate has noise correlated over more samples).
+pub const PAIRED_NOISE_GAIN: f64 = 2.0;
+
 /// Joint speed [rad/s] that counts as stopped (held by static friction or a brake). Above rounding (a resampled
 /// zero reads 1e-17), below any encoder's resolution.
 pub const STOPPED_SPEED: f64 = 1e-9;

@@ -6,7 +6,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::sync::atomic::AtomicBool;
 
-use dynforge_identify::Evidence;
+use dynforge_identify::{Evidence, PAIRED_NOISE_GAIN};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::read;
 use dynforge_robot::generator::{GeneratorConfig, generate};
@@ -154,10 +154,10 @@ fn generated_only_and_noisy_examples_change_only_what_they_say() {
 }
 
 /// A log noisier than simulation (a real robot's): the residual the prior's parameters leave is measured per joint
-/// and weights the evidence. On a simulated log nothing changes; with white torque noise added, the measured noise
-/// is the true parameters' NRMSE on that log as the full regressor computes it independently (the fit takes up at
-/// most its 30 directions' share of the noise, under 1 % of some 10^4 rows, and only along directions the data
-/// see), and the evidence is divided by the noise's variance.
+/// and weights the evidence. On a simulated log nothing changes; with white effort noise added, the measured noise
+/// is the effort noise: `sqrt(PAIRED_NOISE_GAIN)` times the true parameters' NRMSE on the paired torques as the full
+/// regressor computes it independently (the fit takes up at most its 30 directions' share of the noise, under 1 %
+/// of some 10^4 rows, and only along directions the data see), and the evidence is divided by its variance.
 #[test]
 fn a_noisy_logs_evidence_is_weighted_by_the_noise_its_residual_shows() {
     let cfg = GeneratorConfig::default();
@@ -189,7 +189,8 @@ fn a_noisy_logs_evidence_is_weighted_by_the_noise_its_residual_shows() {
     normal.add(&noisy.model, &noisy.trajectory).unwrap();
     let truth = normal.nrmse(&dynamic_parameters(&noisy.model));
     for j in 0..dof {
-        assert!((m.noise[j] / truth[j] - 1.0).abs() < 0.05, "joint {j}: measured {:?}, true {truth:?}", m.noise);
+        let expected = PAIRED_NOISE_GAIN.sqrt() * truth[j];
+        assert!((m.noise[j] / expected - 1.0).abs() < 0.05, "joint {j}: measured {:?}, paired {truth:?}", m.noise);
     }
     // The noise now dominates the floor by orders of magnitude, and the evidence shrinks accordingly.
     let unweighted = recording_evidence(&noisy, &prior, &spec).unwrap().1;
