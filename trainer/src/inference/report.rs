@@ -96,7 +96,7 @@ impl std::fmt::Display for EstimateReport {
             let joints: Vec<String> = e.noise.iter().map(|n| format!("{n:.1e}")).collect();
             writeln!(
                 f,
-                "torque noise per joint (NRMSE of the residual; the evidence is weighted by it): {}",
+                "torque noise per joint (NRMSE, from the log's residual; the evidence is weighted by it): {}",
                 joints.join(" ")
             )?;
         }
