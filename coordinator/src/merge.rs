@@ -140,30 +140,28 @@ pub fn merge(
     let mut pruned_out = std::collections::BTreeSet::new();
     for dir in by_index.values() {
         let entries = ledger::read(&dir.join(LEDGER))?;
-        let pruned = run_dir::read_pruned(dir).map_err(|e| io(dir, e))?;
+        let pruned = run_dir::read_pruned(dir).map_err(|e| io(&dir.join(run_dir::PRUNED), e))?;
         for e in ledger::latest(&entries).values() {
             if let Status::Done { .. } = e.status {
                 let name = e.shard_name(first.seed, engine);
-                if pruned.contains(&name) && !dir.join(SHARDS).join(&name).exists() {
+                let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
+                if pruned.contains(&name) && !from.exists() {
                     pruned_out.insert(name);
                     merged.pruned += 1;
-                    ledger.append(e)?;
-                    merged.ledger_entries += 1;
-                    continue;
+                } else {
+                    if std::fs::hard_link(&from, &to).is_err() {
+                        std::fs::copy(&from, &to).map_err(|e| io(&from, e))?;
+                        merged.copied += 1;
+                    }
+                    merged.shards += 1;
                 }
-                let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
-                if std::fs::hard_link(&from, &to).is_err() {
-                    std::fs::copy(&from, &to).map_err(|e| io(&from, e))?;
-                    merged.copied += 1;
-                }
-                merged.shards += 1;
             }
             ledger.append(e)?;
             merged.ledger_entries += 1;
         }
     }
     if !pruned_out.is_empty() {
-        run_dir::write_pruned(out, &pruned_out).map_err(|e| io(out, e))?;
+        run_dir::write_pruned(out, &pruned_out).map_err(|e| io(&out.join(run_dir::PRUNED), e))?;
     }
     let manifest = Manifest { partition: Partition::WHOLE, ..first };
     caches(manifest.to_toml().as_bytes()).map_err(MergeError::Caches)?;

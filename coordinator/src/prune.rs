@@ -59,7 +59,8 @@ pub fn prune(
     let entries = ledger::read(&dir.join(LEDGER))?;
     let shards = dir.join(SHARDS);
     let io = |p: &Path, source| VerifyError::Io { path: p.display().to_string(), source };
-    let mut pruned = run_dir::read_pruned(dir).map_err(|e| io(dir, e))?;
+    let list = dir.join(run_dir::PRUNED);
+    let mut pruned = run_dir::read_pruned(dir).map_err(|e| io(&list, e))?;
     let present: Vec<String> = ledger::latest(&entries)
         .values()
         .filter(|e| matches!(e.status, Status::Done { .. }))
@@ -67,7 +68,7 @@ pub fn prune(
         .filter(|name| shards.join(name).exists())
         .collect();
     pruned.extend(present.iter().cloned());
-    run_dir::write_pruned(dir, &pruned).map_err(|e| io(dir, e))?;
+    run_dir::write_pruned(dir, &pruned).map_err(|e| io(&list, e))?;
     for name in &present {
         let path = shards.join(name);
         std::fs::remove_file(&path).map_err(|e| io(&path, e))?;

@@ -192,26 +192,18 @@ impl LatentSums {
     /// Each joint's effort noise variance as these samples show it: the mean squared residual of its paired torques
     /// at the posterior mean, times [`PAIRED_NOISE_GAIN`], the posterior weighted by the noise found so far (a few
     /// rounds from the floor; the residual is what neither the noise floor nor the prior's parameters explain:
-    /// sensor noise, unmodelled dynamics). The evidence of a log that is noisier than the floor would otherwise be believed far beyond what
-    /// it carries: with torque noise at 1e-3 of the RMS, per-robot R2 0.98 -> 0.88 (`dynforge-bench-noise`).
+    /// sensor noise, unmodelled dynamics). The evidence of a log that is noisier than the floor would otherwise be
+    /// believed far beyond what it carries: with torque noise at 1e-3 of the RMS, per-robot R2 0.98 -> 0.88
+    /// (`dynforge-bench-noise`).
     pub fn measured_noise(&self, floor: f64) -> Result<Vec<f64>, IdentifyError> {
-        let r = self.rank;
         let mut variance = vec![0.0; self.joints.len()];
         for _ in 0..NOISE_ROUNDS {
-            let z = self.evidence_with_noise(floor, &variance).posterior()?.mean;
-            for (v, j) in variance.iter_mut().zip(&self.joints) {
-                if j.n == 0 {
-                    continue;
-                }
-                let mut quadratic = 0.0;
-                for a in 0..r {
-                    for c in a..r {
-                        let u = j.uu[packed(r, a, c)] * z[a] * z[c];
-                        quadratic += if a == c { u } else { 2.0 * u };
-                    }
-                }
-                let ue: f64 = j.ue.iter().zip(&z).map(|(u, z)| u * z).sum();
-                *v = PAIRED_NOISE_GAIN * ((j.ee - 2.0 * ue + quadratic) / j.n as f64).max(0.0);
+            let z = DVector::from_vec(self.evidence_with_noise(floor, &variance).posterior()?.mean);
+            for (v, j) in variance.iter_mut().zip(&self.joints).filter(|(_, j)| j.n > 0) {
+                // |e - U z|^2 from the sums.
+                let rss = j.ee - 2.0 * DVector::from_column_slice(&j.ue).dot(&z)
+                    + z.dot(&(Evidence::unpack(self.rank, &j.uu) * &z));
+                *v = PAIRED_NOISE_GAIN * (rss / j.n as f64).max(0.0);
             }
         }
         Ok(variance)

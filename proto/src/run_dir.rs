@@ -31,14 +31,15 @@ pub const PRUNED: &str = "pruned.txt";
 
 const PRUNED_HEADER: &str = "# dynforge: shards deleted after their data were cached (dataset prepare --prune)";
 
-/// The shards of `dir` recorded as pruned (empty when there is no `pruned.txt`).
+/// The shards of `dir` recorded as pruned (empty when there is no `pruned.txt`). An error is the OS's alone, as
+/// [`write_atomic`]'s: the caller names `dir.join(PRUNED)`.
 pub fn read_pruned(dir: &Path) -> std::io::Result<std::collections::BTreeSet<String>> {
     match std::fs::read_to_string(dir.join(PRUNED)) {
         Ok(text) => {
             Ok(text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')).map(String::from).collect())
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Default::default()),
-        Err(e) => Err(std::io::Error::new(e.kind(), format!("{}: {e}", dir.join(PRUNED).display()))),
+        Err(e) => Err(e),
     }
 }
 

@@ -11,7 +11,7 @@ use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::read;
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::parameters::{dynamic_parameters, labels};
-use dynforge_trainer::checkpoint::{Checkpoint, PriorRecord};
+use dynforge_trainer::checkpoint::{Checkpoint, ExampleRecord, PriorRecord};
 use dynforge_trainer::data::physics::{PhysicsSet, generator_prior, measured_evidence, recording_evidence};
 use dynforge_trainer::data::split::{Split, split_of};
 use dynforge_trainer::data::window::WindowSpec;
@@ -53,7 +53,8 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     // One validation robot of the three.
     let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
     let split = (0..100).map(|s| (s, 0.3)).find(|&sf| (0..3).filter(|&r| validation(sf, r)).count() == 1).unwrap();
-    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, per_epoch: 16384, real: true, noisy: false };
+    let record = ExampleRecord { generated_per_epoch: 16384, real: true, noisy: false };
+    let source = PhysicsSource { generator: cfg.clone(), seed: 1234, examples: record };
     let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
     let model = PhysicsConfig { hidden: 128, layers: 2, ..PhysicsConfig::new(examples.shape()[1]) };
     let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, vec![], None, examples.standardizer());
@@ -114,7 +115,8 @@ fn generated_only_and_noisy_examples_change_only_what_they_say() {
     let validation = |(s, f): (u64, f64), r: u64| split_of(s, r, f) == Split::Validation;
     let split = (0..100).map(|s| (s, 0.5)).find(|&sf| validation(sf, 0) != validation(sf, 1)).unwrap();
     let examples = |real: bool, noisy: bool| {
-        let source = PhysicsSource { generator: cfg.clone(), seed: 99, per_epoch: 48, real, noisy };
+        let examples = ExampleRecord { generated_per_epoch: 48, real, noisy };
+        let source = PhysicsSource { generator: cfg.clone(), seed: 99, examples };
         let mut e = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
         e.begin_epoch(2);
         e

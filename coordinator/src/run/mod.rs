@@ -138,7 +138,9 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     }
     let manifest =
         Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
-    let pruned = dynforge_proto::run_dir::read_pruned(&cfg.dir).map_err(dir_err)?;
+    let pruned = dynforge_proto::run_dir::read_pruned(&cfg.dir).map_err(|e| {
+        dir_err(std::io::Error::new(e.kind(), format!("reading {}: {e}", dynforge_proto::run_dir::PRUNED)))
+    })?;
     if !pruned.is_empty() && Manifest::load(&cfg.dir)?.is_some_and(|m| m.robots < cfg.robots) {
         return Err(GenerateError::Settings(format!(
             "{}: {} shards were pruned (their data are only in the caches, which a larger dataset makes stale), so \

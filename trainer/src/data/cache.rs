@@ -173,8 +173,8 @@ pub(crate) fn dataset_hash_of(dir: &Path) -> Result<u64, ReadError> {
 
 /// After a cache miss: an error when shards of `dir` were pruned, whose data only a current cache could hold.
 pub(crate) fn check_not_pruned(dir: &Path, what: &str) -> Result<(), ReadError> {
-    let pruned =
-        read_pruned(dir).map_err(|e| ReadError::Content { file: dir.display().to_string(), problem: e.to_string() })?;
+    let pruned = read_pruned(dir)
+        .map_err(|e| ReadError::Content { file: dir.join(PRUNED).display().to_string(), problem: e.to_string() })?;
     if pruned.is_empty() {
         return Ok(());
     }

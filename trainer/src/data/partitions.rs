@@ -10,7 +10,7 @@ use std::collections::BTreeSet;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::run_dir::{CACHE, LEDGER, read_pruned, write_atomic};
+use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_atomic};
 
 use super::cache::{self, CacheKey, CachedWindows, dataset_hash, dataset_hash_of};
 use super::physics::{self, PhysicsSet};
@@ -60,7 +60,7 @@ pub fn plan(parts: &[PathBuf]) -> Result<Plan, String> {
     let all: BTreeSet<CacheKey> = current.iter().flatten().copied().collect();
     let mut any_pruned = false;
     for dir in parts {
-        any_pruned |= !read_pruned(dir).map_err(|e| e.to_string())?.is_empty();
+        any_pruned |= !read_pruned(dir).map_err(|e| format!("{}: {e}", dir.join(PRUNED).display()))?.is_empty();
     }
     let common: Vec<CacheKey> = all.iter().copied().filter(|k| current.iter().all(|c| c.contains(k))).collect();
     if any_pruned {
@@ -105,20 +105,10 @@ impl Plan {
                 let path = key.path(dir).map_err(|e| e.to_string())?;
                 files.push((std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?, path));
             }
-            let broken = |p: &Path| format!("{}: not an intact {} cache", p.display(), key.kind);
             let bytes = if key.kind == physics::KIND {
-                let sets = files.iter().map(|(b, p)| PhysicsSet::decode(b).ok_or_else(|| broken(p))).collect::<Result<
-                    Vec<_>,
-                    _,
-                >>(
-                )?;
-                PhysicsSet::combine(&sets).encode()
+                PhysicsSet::combine(&decode_each(&files, key.kind, PhysicsSet::decode)?).encode()
             } else {
-                let sets = files
-                    .iter()
-                    .map(|(b, p)| cache::decode(b).ok_or_else(|| broken(p)))
-                    .collect::<Result<Vec<_>, _>>()?;
-                cache::encode(&CachedWindows::combine(&sets)?)
+                cache::encode(&CachedWindows::combine(&decode_each(&files, key.kind, cache::decode)?)?)
             };
             let name = key.file_name(merged_dataset);
             let path = out.join(CACHE).join(&name);
@@ -127,6 +117,15 @@ impl Plan {
         }
         Ok(written)
     }
+}
+
+/// Each of `files` (bytes, path) decoded by `decode`; an error names the first that is not an intact `kind` cache.
+fn decode_each<T>(
+    files: &[(Vec<u8>, PathBuf)],
+    kind: &str,
+    decode: impl Fn(&[u8]) -> Option<T>,
+) -> Result<Vec<T>, String> {
+    files.iter().map(|(b, p)| decode(b).ok_or_else(|| format!("{}: not an intact {kind} cache", p.display()))).collect()
 }
 
 #[cfg(test)]

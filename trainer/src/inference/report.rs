@@ -82,8 +82,8 @@ impl EstimateReport {
             })
         });
         serde_json::json!({
-            "windows": e.windows, "torque_noise": e.noise, "parameters": parameters, "refinement": refined, "projections": self.projections,
-            "notes": self.notes, "urdf": self.urdf,
+            "windows": e.windows, "torque_noise": e.noise, "parameters": parameters, "refinement": refined,
+            "projections": self.projections, "notes": self.notes, "urdf": self.urdf,
         })
     }
 }

@@ -15,6 +15,7 @@ use dynforge_robot::parameters::{dynamic_parameters, labels};
 use dynforge_robot::rng::Rng;
 
 use super::Examples;
+use crate::checkpoint::ExampleRecord;
 use crate::data::normalize::Standardizer;
 use crate::data::physics::{
     Draw, EvidenceList, LABEL_COLUMNS, NOISE_FLOOR, PhysicsSet, draw_seed, feature_width, features,
@@ -28,16 +29,12 @@ pub struct PhysicsSource {
     pub generator: GeneratorConfig,
     /// Seed of the generated robots (apart from the dataset's: `crate::data::physics::draw_seed`).
     pub seed: u64,
-    /// Generated robots per epoch.
-    pub per_epoch: usize,
-    /// Whether the dataset's own training examples are trained on besides the generated ones. Without them the
-    /// network cannot memorise the real examples (they are few next to the generator's stream) and the dataset's
-    /// simulations serve only as excitations and for validation.
-    pub real: bool,
-    /// Whether half the generated robots carry torque noise (log-uniform from [`NOISY_LEVELS`]), their evidence
-    /// weighted by it as `estimate` weighs a noisy log: the posteriors of real robots' logs, which simulation alone
-    /// never shows the network.
-    pub noisy: bool,
+    /// How many generated robots per epoch, whether the dataset's own training examples join them (without them
+    /// the network cannot memorise the real examples, and the dataset's simulations serve only as excitations and
+    /// for validation), and whether half the generated robots carry torque noise (log-uniform from
+    /// [`NOISY_LEVELS`]), their evidence weighted by it as `estimate` weighs a noisy log: the posteriors of real
+    /// robots' logs, which simulation alone never shows the network. What the checkpoint records.
+    pub examples: ExampleRecord,
 }
 
 /// The torque noise of noisy generated examples, relative to the torque RMS: from a good torque sensor to a motor
@@ -166,7 +163,7 @@ impl PhysicsExamples {
     }
 
     fn real_len(&self) -> usize {
-        if self.source.real { self.real_y.len() } else { 0 }
+        if self.source.examples.real { self.real_y.len() } else { 0 }
     }
 
     /// The excitation of generated example `k`: of the kind `k mod 3`, picked by `rng`.
@@ -190,7 +187,7 @@ impl PhysicsExamples {
         }
     }
 
-    /// Generated example `k` of `epoch`, standardised: robot `epoch * per_epoch + k` of the draw seed with the
+    /// Generated example `k` of `epoch`, standardised: robot `epoch * generated_per_epoch + k` of the draw seed with the
     /// excitation the stream (seed, epoch, k) picks; `None` if the generator rejects the robot.
     fn draw(&self, epoch: usize, k: usize) -> Option<(Vec<f32>, [f64; NUM_LABELS])> {
         self.draw_raw(epoch, k).map(|(f, y)| (self.standardizer.row(&f), y))
@@ -198,12 +195,12 @@ impl PhysicsExamples {
 
     /// [`Self::draw`] before standardisation.
     fn draw_raw(&self, epoch: usize, k: usize) -> Option<(Vec<f32>, [f64; NUM_LABELS])> {
-        let id = (epoch.wrapping_mul(self.source.per_epoch).wrapping_add(k)) as u64;
+        let id = (epoch.wrapping_mul(self.source.examples.generated_per_epoch).wrapping_add(k)) as u64;
         let robot = generate(&self.source.generator, self.source.seed, id).ok()?.model;
         let z = self.prior.coordinates(&dynamic_parameters(&robot));
         let mut rng = Rng::stream(self.source.seed, &[0x6578_6369_7465, epoch as u64, k as u64]);
         let mut e = Evidence::noiseless(self.prior.rank(), &self.excitation(k, &mut rng), &z);
-        if self.source.noisy && rng.unit() < 0.5 {
+        if self.source.examples.noisy && rng.unit() < 0.5 {
             let (lo, hi) = NOISY_LEVELS;
             let level = lo * (hi / lo).powf(rng.unit());
             let xi: Vec<f64> = (0..e.rank).map(|_| rng.normal()).collect();
@@ -228,7 +225,7 @@ impl Examples for PhysicsExamples {
         if self.windows.is_empty() || self.robots.is_empty() {
             return;
         }
-        let ks: Vec<usize> = (0..self.source.per_epoch).collect();
+        let ks: Vec<usize> = (0..self.source.examples.generated_per_epoch).collect();
         let drawn = map_in_order(&ks, |&k| self.draw(epoch, k));
         self.drawn_x.clear();
         self.drawn_y.clear();
@@ -243,7 +240,7 @@ impl Examples for PhysicsExamples {
     }
 
     fn planned_train_len(&self) -> usize {
-        self.real_len() + self.source.per_epoch
+        self.real_len() + self.source.examples.generated_per_epoch
     }
 
     fn validation_len(&self) -> usize {

@@ -429,13 +429,8 @@ impl Session<'_> {
             real: !self.recipe.generated_only,
             noisy: self.recipe.noisy,
         };
-        let source = PhysicsSource {
-            generator: generator_cfg.clone(),
-            seed: draw_seed(seed, Draw::Synthetic),
-            per_epoch: record.generated_per_epoch,
-            real: record.real,
-            noisy: record.noisy,
-        };
+        let source =
+            PhysicsSource { generator: generator_cfg, seed: draw_seed(seed, Draw::Synthetic), examples: record };
         let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).map_err(SessionError::Setup)?;
         let mut checkpoint = match previous {
             Some(c) => {
