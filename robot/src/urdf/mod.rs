@@ -119,112 +119,162 @@ fn bad_number(text: &str) -> Option<String> {
 
 fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    check_unique_names(robot).map_err(err)?;
+    let tree = Tree::of(robot).map_err(err)?;
+    let chain = moving_chain(&tree).map_err(err)?;
+    let (joints, links) = chain.into_iter().map(Moving::into_joint_and_link).unzip();
+    Model::new(source_name, robot.name.clone(), tree.root, joints, links)
+}
+
+/// That no two links and no two joints share a name.
+fn check_unique_names(robot: &urdf_rs::Robot) -> Result<(), ModelProblem> {
     let mut seen = HashSet::new();
     for (kind, name) in
         robot.links.iter().map(|l| ("link", &l.name)).chain(robot.joints.iter().map(|j| ("joint", &j.name)))
     {
         if !seen.insert((kind, name.as_str())) {
-            return Err(err(ModelProblem::Duplicate { kind, name: name.clone() }));
+            return Err(ModelProblem::Duplicate { kind, name: name.clone() });
         }
     }
-    let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
-    let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
-    let mut has_parent: HashMap<&str, &str> = HashMap::new();
-    for j in &robot.joints {
-        for link in [&j.parent.link, &j.child.link] {
-            if !links.contains_key(link.as_str()) {
-                return Err(err(ModelProblem::UnknownLink { joint: j.name.clone(), link: link.clone() }));
+    Ok(())
+}
+
+/// The URDF's links by name, the joints hanging from each link, and its one root link.
+struct Tree<'a> {
+    links: HashMap<&'a str, &'a urdf_rs::Link>,
+    children: HashMap<&'a str, Vec<&'a urdf_rs::Joint>>,
+    root: &'a str,
+}
+
+impl<'a> Tree<'a> {
+    /// The tree of `robot`: every joint joins two defined links, no link has two parents, and one link has none.
+    fn of(robot: &'a urdf_rs::Robot) -> Result<Self, ModelProblem> {
+        let links: HashMap<&str, &urdf_rs::Link> = robot.links.iter().map(|l| (l.name.as_str(), l)).collect();
+        let mut children: HashMap<&str, Vec<&urdf_rs::Joint>> = HashMap::new();
+        let mut has_parent: HashMap<&str, &str> = HashMap::new();
+        for j in &robot.joints {
+            for link in [&j.parent.link, &j.child.link] {
+                if !links.contains_key(link.as_str()) {
+                    return Err(ModelProblem::UnknownLink { joint: j.name.clone(), link: link.clone() });
+                }
             }
+            if has_parent.insert(&j.child.link, &j.name).is_some() {
+                return Err(ModelProblem::MultipleParents { link: j.child.link.clone() });
+            }
+            children.entry(&j.parent.link).or_default().push(j);
         }
-        if has_parent.insert(&j.child.link, &j.name).is_some() {
-            return Err(err(ModelProblem::MultipleParents { link: j.child.link.clone() }));
+        let roots: Vec<&str> =
+            robot.links.iter().map(|l| l.name.as_str()).filter(|l| !has_parent.contains_key(l)).collect();
+        if roots.len() != 1 {
+            return Err(ModelProblem::Roots(roots.len()));
         }
-        children.entry(&j.parent.link).or_default().push(j);
+        Ok(Tree { links, children, root: roots[0] })
     }
-    let roots: Vec<&str> =
-        robot.links.iter().map(|l| l.name.as_str()).filter(|l| !has_parent.contains_key(l)).collect();
-    if roots.len() != 1 {
-        return Err(err(ModelProblem::Roots(roots.len())));
+}
+
+/// A moving joint and its link, with the inertia of the links welded to it by fixed joints.
+struct Moving {
+    joint: Joint,
+    link: Link,
+    welded: Inertia,
+    has_weld: bool,
+}
+
+impl Moving {
+    /// Moving joint `j` to link `child`, where `j`'s parent link sits at `x` in the frame of the moving link it is
+    /// welded to, and `origin` is `j`'s own placement.
+    fn new(j: &urdf_rs::Joint, child: &urdf_rs::Link, x: &Se3, origin: &Se3) -> Self {
+        // Keep the file's own numbers when no fixed joint sits in between: lossless round trips.
+        let origin_pose = if *x == Se3::IDENTITY {
+            Pose { xyz: *j.origin.xyz, rpy: *j.origin.rpy }
+        } else {
+            Pose::from_se3(&x.compose(origin))
+        };
+        Moving {
+            joint: convert_joint(j, origin_pose),
+            link: convert_link(child),
+            welded: Inertia::ZERO,
+            has_weld: false,
+        }
     }
 
-    // Walk the tree from the root. `body` is the moving link a URDF link is welded to (None: the fixed base) and
-    // `x` the URDF link's frame in that body's frame.
-    struct Moving {
-        joint: Joint,
-        link: Link,
-        welded: Inertia,
-        has_weld: bool,
+    /// Welds the URDF link `child`, whose frame is at `x` in this link's frame, onto this link.
+    fn weld(&mut self, child: &urdf_rs::Link, x: &Se3) {
+        let i = convert_inertial(&child.inertial).spatial().transformed(x);
+        self.welded = self.welded + i;
+        self.has_weld = true;
     }
+
+    /// The model's joint and link, the link carrying the inertia welded to it.
+    fn into_joint_and_link(self) -> (Joint, Link) {
+        let mut link = self.link;
+        if self.has_weld {
+            let own = if link.inertial.mass > 0.0 { link.inertial.spatial() } else { Inertia::ZERO };
+            link.inertial = Inertial::from_spatial(&(own + self.welded));
+        }
+        (self.joint, link)
+    }
+}
+
+/// The moving joints of `tree` in chain order, found by a walk from the root. On the walk's stack, `body` is the
+/// moving link a URDF link is welded to (None: the fixed base) and `x` the URDF link's frame in that body's frame.
+fn moving_chain(tree: &Tree) -> Result<Vec<Moving>, ModelProblem> {
     let mut chain: Vec<Moving> = Vec::new();
     let mut moving_child_of: HashMap<Option<usize>, String> = HashMap::new();
-    let mut stack: Vec<(&str, Option<usize>, Se3)> = vec![(roots[0], None, Se3::IDENTITY)];
+    let mut stack: Vec<(&str, Option<usize>, Se3)> = vec![(tree.root, None, Se3::IDENTITY)];
     while let Some((link_name, body, x)) = stack.pop() {
-        for j in children.get(link_name).map(Vec::as_slice).unwrap_or(&[]) {
+        for j in tree.children.get(link_name).map(Vec::as_slice).unwrap_or(&[]) {
             let origin = Se3::from_xyz_rpy(*j.origin.xyz, *j.origin.rpy);
-            let child = links[j.child.link.as_str()];
+            let child = tree.links[j.child.link.as_str()];
             match j.joint_type {
                 urdf_rs::JointType::Fixed => {
                     let xc = x.compose(&origin);
                     if let Some(b) = body
                         && child.inertial.mass.value > 0.0
                     {
-                        let i = convert_inertial(&child.inertial).spatial().transformed(&xc);
-                        chain[b].welded = chain[b].welded + i;
-                        chain[b].has_weld = true;
+                        chain[b].weld(child, &xc);
                     }
                     stack.push((&j.child.link, body, xc));
                 }
                 urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
-                    if let Some(other) = moving_child_of.insert(body, j.name.clone()) {
-                        let parent = body.map_or(roots[0].to_string(), |b| chain[b].link.name.clone());
-                        return Err(err(ModelProblem::Branching {
-                            link: parent,
-                            joints: format!("'{other}', '{}'", j.name),
-                        }));
-                    }
+                    check_serial(tree.root, &chain, &mut moving_child_of, body, j)?;
                     let index = chain.len();
-                    if body.is_some_and(|b| b + 1 != index) || (body.is_none() && index != 0) {
-                        return Err(err(ModelProblem::Branching {
-                            link: j.parent.link.clone(),
-                            joints: format!("'{}' and an earlier branch", j.name),
-                        }));
-                    }
-                    // Keep the file's own numbers when no fixed joint sits in between: lossless round trips.
-                    let origin_pose = if x == Se3::IDENTITY {
-                        Pose { xyz: *j.origin.xyz, rpy: *j.origin.rpy }
-                    } else {
-                        Pose::from_se3(&x.compose(&origin))
-                    };
-                    chain.push(Moving {
-                        joint: convert_joint(j, origin_pose),
-                        link: convert_link(child),
-                        welded: Inertia::ZERO,
-                        has_weld: false,
-                    });
+                    chain.push(Moving::new(j, child, &x, &origin));
                     stack.push((&j.child.link, Some(index), Se3::IDENTITY));
                 }
                 ref other => {
-                    return Err(err(ModelProblem::UnsupportedJoint {
+                    return Err(ModelProblem::UnsupportedJoint {
                         joint: j.name.clone(),
                         kind: format!("{other:?}").to_lowercase(),
-                    }));
+                    });
                 }
             }
         }
     }
+    Ok(chain)
+}
 
-    let mut joints = Vec::with_capacity(chain.len());
-    let mut out_links = Vec::with_capacity(chain.len());
-    for m in chain {
-        let mut link = m.link;
-        if m.has_weld {
-            let own = if link.inertial.mass > 0.0 { link.inertial.spatial() } else { Inertia::ZERO };
-            link.inertial = Inertial::from_spatial(&(own + m.welded));
-        }
-        joints.push(m.joint);
-        out_links.push(link);
+/// That the moving joint `j`, below the moving link `body` (None: the base, named `root`), continues the serial
+/// chain found so far: it is `body`'s only moving child, and `body` is the chain's last link.
+fn check_serial(
+    root: &str,
+    chain: &[Moving],
+    moving_child_of: &mut HashMap<Option<usize>, String>,
+    body: Option<usize>,
+    j: &urdf_rs::Joint,
+) -> Result<(), ModelProblem> {
+    if let Some(other) = moving_child_of.insert(body, j.name.clone()) {
+        let parent = body.map_or(root.to_string(), |b| chain[b].link.name.clone());
+        return Err(ModelProblem::Branching { link: parent, joints: format!("'{other}', '{}'", j.name) });
     }
-    Model::new(source_name, robot.name.clone(), roots[0], joints, out_links)
+    let index = chain.len();
+    if body.is_some_and(|b| b + 1 != index) || (body.is_none() && index != 0) {
+        return Err(ModelProblem::Branching {
+            link: j.parent.link.clone(),
+            joints: format!("'{}' and an earlier branch", j.name),
+        });
+    }
+    Ok(())
 }
 
 fn convert_inertial(i: &urdf_rs::Inertial) -> Inertial {

@@ -136,88 +136,149 @@ fn difference(a: &Inertia, b: &Inertia) -> Inertia {
     Inertia { mass: a.mass - b.mass, h: a.h - b.h, i_o: a.i_o - b.i_o }
 }
 
+/// An edit of the document: the byte range replaced, and its replacement.
+type Edit = (std::ops::Range<usize>, String);
+
+/// The user's document as the patch reads it: its URDF, its links' and joints' elements, and each link's children
+/// through fixed joints.
+struct Document<'a> {
+    robot: &'a urdf_rs::Robot,
+    elements: &'a [Element],
+    fixed_children: HashMap<&'a str, Vec<&'a str>>,
+}
+
+impl<'a> Document<'a> {
+    fn new(robot: &'a urdf_rs::Robot, elements: &'a [Element]) -> Self {
+        let fixed_children: HashMap<&str, Vec<&str>> = robot
+            .joints
+            .iter()
+            .filter(|j| j.joint_type == urdf_rs::JointType::Fixed)
+            .fold(HashMap::new(), |mut m, j| {
+                m.entry(j.parent.link.as_str()).or_default().push(j.child.link.as_str());
+                m
+            });
+        Document { robot, elements, fixed_children }
+    }
+
+    /// The element `<tag name="name">`.
+    fn find(&self, tag: &str, name: &str) -> Option<&'a Element> {
+        self.elements.iter().find(|e| e.tag == tag && e.name == name)
+    }
+
+    /// The links welded to `link`, as the document has them.
+    fn welded_to(&self, link: &str) -> Vec<&'a str> {
+        let mut welded = Vec::new();
+        let mut stack = vec![link];
+        while let Some(l) = stack.pop() {
+            for c in self.fixed_children.get(l).into_iter().flatten() {
+                welded.push(*c);
+                stack.push(c);
+            }
+        }
+        welded
+    }
+
+    /// `link`'s own inertia as the document states it (zero if it has none).
+    fn own_inertia(&self, link: &str) -> Inertia {
+        self.robot
+            .links
+            .iter()
+            .find(|l| l.name == link)
+            .map(|l| convert_inertial(&l.inertial))
+            .filter(|i| i.mass > 0.0)
+            .map_or(Inertia::ZERO, |i| i.spatial())
+    }
+
+    /// The `<inertial>` to write on the moving link `name` for the estimate `estimate`, given the inertia `loaded`
+    /// that a loader gives the link (its own and its welded links'). When the estimate less the welded links is not
+    /// a body, the whole estimate, with a note and the edits that remove the welded links' inertia.
+    fn link_inertial(
+        &self,
+        name: &str,
+        loaded: &Inertial,
+        estimate: &Inertial,
+        edits: &mut Vec<Edit>,
+        notes: &mut Vec<String>,
+    ) -> Inertial {
+        let children = difference(&loaded.spatial(), &self.own_inertia(name));
+        if children.mass <= 0.0 {
+            return *estimate;
+        }
+        let own = difference(&estimate.spatial(), &children);
+        match check_physical(&own) {
+            Ok(()) => without_residue(Inertial::from_spatial(&own)),
+            Err(why) => {
+                // The estimate cannot be split: it all goes on the link, and the welded links' inertia is removed
+                // so that no loader counts it twice.
+                let welded = self.welded_to(name);
+                notes.push(format!(
+                    "link '{name}': the estimate less its welded links ({}) is not a body ({why}); the whole \
+                     estimate is written on '{name}' and their <inertial> elements are removed",
+                    welded.join(", ")
+                ));
+                for w in &welded {
+                    if let Some(range) = self
+                        .find("link", w)
+                        .and_then(|e| e.children.iter().find(|(t, _)| t == "inertial").map(|(_, r)| r.clone()))
+                    {
+                        edits.push((range, String::new()));
+                    }
+                }
+                *estimate
+            }
+        }
+    }
+}
+
+/// That `document`'s model `original` has the moving joints of `model`, the robot estimated.
+fn check_same_joints(original: &Model, model: &Model) -> Result<(), ModelProblem> {
+    let names = |m: &Model| m.joints().iter().map(|j| j.name.clone()).collect::<Vec<_>>();
+    if names(original) != names(model) {
+        return Err(ModelProblem::Parse(format!(
+            "its moving joints ({}) are not those of the robot estimated ({})",
+            names(original).join(", "),
+            names(model).join(", ")
+        )));
+    }
+    Ok(())
+}
+
+/// `document` with `edits` (of disjoint ranges) made.
+fn apply(document: &str, mut edits: Vec<Edit>) -> String {
+    edits.sort_by_key(|(range, _)| std::cmp::Reverse(range.start));
+    let mut out = document.to_string();
+    for (range, text) in edits {
+        out.replace_range(range, &text);
+    }
+    out
+}
+
 /// `document` (the URDF `source`, with the kinematics of `model`) with `model`'s inertia and friction written into
 /// it, and notes on what could not be written as asked. Everything but the moving links' `<inertial>` and the moving
 /// joints' `<dynamics>` is kept as it was.
 pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec<String>), ModelError> {
     let err = |problem| ModelError { source_name: source.to_string(), problem };
     let original = parse(document, source)?;
-    let names = |m: &Model| m.joints().iter().map(|j| j.name.clone()).collect::<Vec<_>>();
-    if names(&original) != names(model) {
-        return Err(err(ModelProblem::Parse(format!(
-            "its moving joints ({}) are not those of the robot estimated ({})",
-            names(&original).join(", "),
-            names(model).join(", ")
-        ))));
-    }
+    check_same_joints(&original, model).map_err(err)?;
     let robot = urdf_rs::read_from_string(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
-    let elements = elements(document).map_err(|e| err(ModelProblem::Parse(e)))?;
-    let find = |tag: &str, name: &str| elements.iter().find(|e| e.tag == tag && e.name == name);
-    let mut edits: Vec<(std::ops::Range<usize>, String)> = Vec::new();
+    let elements = elements(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
+    let doc = Document::new(&robot, &elements);
+    let mut edits: Vec<Edit> = Vec::new();
     let mut notes = Vec::new();
-    let fixed_children: HashMap<&str, Vec<&str>> =
-        robot.joints.iter().filter(|j| j.joint_type == urdf_rs::JointType::Fixed).fold(HashMap::new(), |mut m, j| {
-            m.entry(j.parent.link.as_str()).or_default().push(j.child.link.as_str());
-            m
-        });
     for (k, (joint, link)) in model.joints().iter().zip(model.links()).enumerate() {
-        let element =
-            find("joint", &joint.name).ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
+        let element = doc
+            .find("joint", &joint.name)
+            .ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
         let f = joint.friction;
         edits.extend(put(document, element, "dynamics", |_| {
             format!("<dynamics damping=\"{:?}\" friction=\"{:?}\"/>", f.viscous, f.coulomb)
         }));
 
         let name = &original.links()[k].name;
-        let element = find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
-        // The links welded to this one, as the document has them.
-        let mut welded = Vec::new();
-        let mut stack = vec![name.as_str()];
-        while let Some(l) = stack.pop() {
-            for c in fixed_children.get(l).into_iter().flatten() {
-                welded.push(*c);
-                stack.push(c);
-            }
-        }
-        let own_in_document = robot
-            .links
-            .iter()
-            .find(|l| &l.name == name)
-            .map(|l| convert_inertial(&l.inertial))
-            .filter(|i| i.mass > 0.0)
-            .map_or(Inertia::ZERO, |i| i.spatial());
-        let children = difference(&original.links()[k].inertial.spatial(), &own_in_document);
-        let inertial = if children.mass <= 0.0 {
-            link.inertial
-        } else {
-            let own = difference(&link.inertial.spatial(), &children);
-            match check_physical(&own) {
-                Ok(()) => without_residue(Inertial::from_spatial(&own)),
-                Err(why) => {
-                    // The estimate cannot be split: it all goes on the link, and the welded links' inertia is removed
-                    // so that no loader counts it twice.
-                    notes.push(format!(
-                        "link '{name}': the estimate less its welded links ({}) is not a body ({why}); the whole \
-                         estimate is written on '{name}' and their <inertial> elements are removed",
-                        welded.join(", ")
-                    ));
-                    for w in &welded {
-                        if let Some(range) = find("link", w)
-                            .and_then(|e| e.children.iter().find(|(t, _)| t == "inertial").map(|(_, r)| r.clone()))
-                        {
-                            edits.push((range, String::new()));
-                        }
-                    }
-                    link.inertial
-                }
-            }
-        };
+        let element = doc.find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
+        let loaded = &original.links()[k].inertial;
+        let inertial = doc.link_inertial(name, loaded, &link.inertial, &mut edits, &mut notes);
         edits.extend(put(document, element, "inertial", |indent| inertial_xml(&inertial, indent)));
     }
-    edits.sort_by_key(|(range, _)| std::cmp::Reverse(range.start));
-    let mut out = document.to_string();
-    for (range, text) in edits {
-        out.replace_range(range, &text);
-    }
-    Ok((out, notes))
+    Ok((apply(document, edits), notes))
 }
