@@ -154,7 +154,7 @@ pub enum ModelProblem {
     #[error("link '{link}' has no inertia (missing <inertial> or zero mass) but moves")]
     MissingInertia { link: String },
     #[error("link '{link}' has a non-physical inertia: {reason}")]
-    InvalidInertia { link: String, reason: String },
+    InvalidInertia { link: String, reason: InertiaError },
     #[error("joint '{joint}': {reason}")]
     InvalidJoint { joint: String, reason: String },
     #[error("invalid generator config: {0}")]
@@ -171,27 +171,45 @@ pub struct ModelError {
     pub problem: ModelProblem,
 }
 
+/// Why an inertia is not one a real body can have (see [`check_physical`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum InertiaError {
+    #[error("mass {0} is not positive")]
+    Mass(f64),
+    #[error("inertia has non-finite entries")]
+    NonFinite,
+    #[error("inertia is not symmetric")]
+    Asymmetric,
+    /// The principal moments about the COM, smallest first.
+    #[error("principal moments {0:?} are not all positive")]
+    NotPositive([f64; 3]),
+    /// The principal moments about the COM, smallest first.
+    #[error("principal moments {0:?} violate the triangle inequality")]
+    Triangle([f64; 3]),
+}
+
 /// Checks that an inertia is one a real body can have: positive mass, positive-definite rotational inertia about the
 /// COM, and principal moments obeying the triangle inequality (`I1 + I2 >= I3`, with a relative slack for rounding).
-pub fn check_physical(i: &Inertia) -> Result<(), String> {
+pub fn check_physical(i: &Inertia) -> Result<(), InertiaError> {
     if !(i.mass.is_finite() && i.mass > 0.0) {
-        return Err(format!("mass {} is not positive", i.mass));
+        return Err(InertiaError::Mass(i.mass));
     }
     let ic = i.i_com();
     if ic.iter().any(|v| !v.is_finite()) {
-        return Err("inertia has non-finite entries".into());
+        return Err(InertiaError::NonFinite);
     }
     if (ic - ic.transpose()).norm() > 1e-12 * ic.norm() {
-        return Err("inertia is not symmetric".into());
+        return Err(InertiaError::Asymmetric);
     }
-    let mut ev: Vec<f64> = SymmetricEigen::new(ic).eigenvalues.iter().copied().collect();
+    let e = SymmetricEigen::new(ic).eigenvalues;
+    let mut ev = [e[0], e[1], e[2]];
     ev.sort_by(f64::total_cmp);
     if ev[0] <= 0.0 {
-        return Err(format!("principal moments {ev:?} are not all positive"));
+        return Err(InertiaError::NotPositive(ev));
     }
     let slack = 1e-9 * ev[2];
     if ev[0] + ev[1] + slack < ev[2] {
-        return Err(format!("principal moments {ev:?} violate the triangle inequality"));
+        return Err(InertiaError::Triangle(ev));
     }
     Ok(())
 }
@@ -325,5 +343,33 @@ impl Model {
             l.inertial = *i;
         }
         Model::new(&format!("model '{}'", self.name), self.name.clone(), self.base.clone(), joints, links)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Callers, tests and users match on these texts: they stay as they are.
+    #[test]
+    fn inertia_errors_keep_their_texts() {
+        let ev = vec![-1.0, 0.5, 2.25];
+        assert_eq!(InertiaError::Mass(-1.5).to_string(), format!("mass {} is not positive", -1.5));
+        assert_eq!(InertiaError::NonFinite.to_string(), "inertia has non-finite entries");
+        assert_eq!(InertiaError::Asymmetric.to_string(), "inertia is not symmetric");
+        assert_eq!(
+            InertiaError::NotPositive([-1.0, 0.5, 2.25]).to_string(),
+            format!("principal moments {ev:?} are not all positive")
+        );
+        assert_eq!(
+            InertiaError::Triangle([-1.0, 0.5, 2.25]).to_string(),
+            format!("principal moments {ev:?} violate the triangle inequality")
+        );
+        let bad = Inertia::from_com(1.0, Vector3::zeros(), Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 3.0)));
+        let problem = ModelProblem::InvalidInertia { link: "l1".into(), reason: check_physical(&bad).unwrap_err() };
+        assert_eq!(
+            problem.to_string(),
+            "link 'l1' has a non-physical inertia: principal moments [1.0, 1.0, 3.0] violate the triangle inequality"
+        );
     }
 }

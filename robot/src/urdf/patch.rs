@@ -38,13 +38,22 @@ fn tag_and_name(e: &BytesStart) -> (String, String) {
     (tag, name)
 }
 
+/// Where and why the XML reader stopped.
+#[derive(Debug, thiserror::Error)]
+#[error("at byte {at}: {error}")]
+struct XmlError {
+    at: u64,
+    #[source]
+    error: quick_xml::Error,
+}
+
 /// The links and joints of `doc` with their byte ranges.
-fn elements(doc: &str) -> Result<Vec<Element>, String> {
+fn elements(doc: &str) -> Result<Vec<Element>, XmlError> {
     let mut reader = Reader::from_str(doc);
     let (mut depth, mut out, mut open) = (0usize, Vec::new(), None::<Element>);
     loop {
         let before = reader.buffer_position() as usize;
-        let event = reader.read_event().map_err(|e| format!("at byte {}: {e}", reader.error_position()))?;
+        let event = reader.read_event().map_err(|error| XmlError { at: reader.error_position(), error })?;
         let after = reader.buffer_position() as usize;
         match event {
             Event::Start(e) => {
