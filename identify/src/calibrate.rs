@@ -98,7 +98,7 @@ pub fn calibrate_files(
         move |source| CalibrateFilesError::Identify { file, source }
     };
     // Each log read with the URDF given, or else with its own description, which must be the first log's: the sums
-    // of two robots' logs identify neither (it used to write a URDF of that mixture).
+    // of two robots' logs identify neither, and a URDF of that mixture is no robot.
     let given = model.clone();
     for log in logs {
         let p = read(log, given.as_ref())?;

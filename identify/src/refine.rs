@@ -15,11 +15,11 @@ use crate::solve::pseudo_solve;
 /// solve would be as ill-conditioned as the data.
 pub const NOISE_FLOOR: f64 = 1e-3;
 
-/// Independent Gaussian beliefs about the 38 labels [SI]. (A full covariance, e.g. the training robots' label
-/// correlations or the network's error correlations, was tried: it lets the refinement trade labels along
-/// correlated directions into unphysical values that the URDF's projection then undoes, and scored worse.)
-/// (Tying the generator's equal labels, `Ixx == Iyy` of every link, into one unknown each was tried too: inertia R2
-/// fell from -0.20 to -0.42 with the training prior on the 1,024-robot set.)
+/// Independent Gaussian beliefs about the 38 labels [SI], each label its own unknown. A full covariance (the
+/// training robots' label correlations, the network's error correlations) would let the refinement trade labels
+/// along correlated directions into unphysical values that the URDF's projection then undoes; tying the
+/// generator's equal labels (`Ixx == Iyy` of every link) into one unknown scores worse on inertia. Both measured in
+/// `docs/notes.md`.
 #[derive(Debug, Clone)]
 pub struct Prior {
     pub mean: [f64; NUM_LABELS],

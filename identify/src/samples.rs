@@ -34,23 +34,23 @@ pub const STOPPED_SPEED: f64 = 1e-9;
 /// Stops and starts: a joint whose speed is [`STOPPED_SPEED`] at one of `i-1, i, i+1` and above it at another
 /// switches between sliding and sticking inside the span, and the span's mean acceleration mixes the two regimes.
 /// Its own row has no model there, and the other joints' rows see the switch through the coupling (in our simulator
-/// the stop also lands the velocity on zero within a substep). Leaving those spans out for every joint took the true
-/// parameters' residual from 1e-5..6e-5 of each joint's torque spread to ~1e-7 on 60 shards of the 2,048-robot set,
-/// at 0.2 % of the samples; the cause had looked like fast-changing effort (the PID reacting to the stop).
+/// the stop also lands the velocity on zero within a substep). Those spans are left out for every joint: a fraction
+/// of a percent of the samples, they carry nearly all the residual the true parameters leave (figures in
+/// `docs/notes.md`).
 ///
 /// Pairing with acceleration: a logged effort is the torque applied over the *next* grid step (zero-order hold;
 /// our shards' contract, and what a motor driver does between two commands). The central difference
 /// `(qd[i+1] - qd[i-1]) / 2 dt` is the mean acceleration over `[t[i-1], t[i+1]]`, which the efforts held over those
 /// two steps produced: `tau[i-1]` and `tau[i]`. So the torque paired with it is their mean. Pairing it with `tau[i]`
-/// alone errs by half the change of torque over a step: measured as a 1.5-11 % bias of viscous friction and 50-70 %
-/// of wrist inertia on MuJoCo logs.
+/// alone errs by half the change of torque over a step, which biases viscous friction and the wrists' inertia
+/// (`docs/notes.md`).
 ///
 /// Pairing with velocity: the mean torque over that span balances the *mean* viscous force over it, and the mean
 /// velocity over `[t[i-1], t[i+1]]` is exactly `(q[i+1] - q[i-1]) / 2 dt`, whatever the integrator did inside the
 /// steps. `qd[i]` instead misses the kink the effort's change puts in the velocity at `t[i]`: an error of
 /// `mu_v dt/4` times the change of acceleration, i.e. `lambda dt / 4` of the torque's change for a joint whose
-/// viscous rate `lambda = mu_v / inertia` is high (light wrists: hundreds per second). That was the residual the
-/// true parameters left where the effort changed fast (3e-4 to 1.3e-3 of a joint's torque, against 1e-5 elsewhere).
+/// viscous rate `lambda = mu_v / inertia` is high (light wrists: hundreds per second). Paired with `qd[i]`, the true
+/// parameters would leave that error as residual wherever the effort changes fast.
 pub(crate) fn for_each(
     model: &Model,
     data: &mut Data,

@@ -142,8 +142,8 @@ fn calibrating_a_frictionless_description_finds_the_friction() {
 #[test]
 fn the_generated_arms_have_48_identifiable_combinations() {
     // 36 inertial combinations and the 12 friction coefficients: the regressor's row space depends on the
-    // kinematics alone, so every robot and any rich enough motion give the same count. (Scaling a column that no
-    // torque depends on, zero up to rounding, to unit norm used to pass for a 49th.)
+    // kinematics alone, so every robot and any rich enough motion give the same count. (A column that no torque
+    // depends on is zero only up to rounding: scaled to unit norm it would pass for a 49th.)
     for id in [0, 3, 6] {
         let truth = robot(id);
         let mut ne = NormalEquations::new(6);
@@ -168,7 +168,7 @@ fn a_calibration_that_predicts_worse_than_the_urdf_says_so() {
         model: model.clone(),
         projections: Vec::new(),
     };
-    // A 500 Hz bag gave calibrated 0.0108 against 0.0054 for the URDF, printed without a word.
+    // A calibration worse than the URDF as given (the figures of a 500 Hz bag, `docs/notes.md`) says so.
     let worse = calibration(0.0108).to_string();
     assert!(
         worse.contains("calibrated 0.0108, URDF as given 0.0054")

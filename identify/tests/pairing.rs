@@ -64,7 +64,7 @@ fn the_central_difference_is_paired_with_the_mean_of_the_two_efforts_it_integrat
     let traj = log(6000);
     assert_exactly_identified(&model, &traj, J);
 
-    // The pairing this replaced: the central difference at i with the effort logged at i alone. Solved here
+    // The naive pairing: the central difference at i with the effort logged at i alone. Solved here
     // independently on the same samples, it misses by half a torque step per sample, which the regression folds
     // into the friction and the inertia: half of ~2 N m/s x dt against a torque spread of ~0.4 N m.
     let worst = worst_of_other_pairing(&traj, J, |i| traj.tau[i]);

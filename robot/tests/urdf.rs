@@ -120,7 +120,7 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
 
     assert_eq!(problem("<robot name='x'><link name='base'/></robot>").1, ModelProblem::NoMovingJoint);
 
-    // A number that is not one names its element and line (the XML reader's error named neither).
+    // A number that is not one names its element and line (the XML reader's error names neither).
     let (msg, _) = problem(&format!(
         "<robot name='x'>\n<link name='base'/>\n{}{j0}</robot>",
         l1.replacen("value=\"1\"", "value=\"abc\"", 1)
@@ -132,7 +132,7 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
         "<robot name='x'><link name='base'/>{l1}<link name='tool'/>{j0}<joint name='j0' type='fixed'><parent link='l1'/><child link='tool'/></joint></robot>"
     ));
     assert_eq!(p, ModelProblem::Duplicate { kind: "joint", name: "j0".into() }, "{msg}");
-    // Nesting deep enough to overflow the XML reader's stack (it aborted the process) is an error; a normal file's
+    // Nesting deep enough to overflow the XML reader's stack (it aborts the process) is an error; a normal file's
     // tags in comments and attribute values do not count.
     let deep = format!("<robot name='x'>{}{}</robot>", "<a>".repeat(20_000), "</a>".repeat(20_000));
     assert_eq!(problem(&deep).1, ModelProblem::TooDeep(256));

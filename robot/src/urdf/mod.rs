@@ -29,7 +29,7 @@ pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
 /// Parses URDF text; `source_name` labels errors (usually the file path).
 pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
-    // The XML reader recurses per element: 20,000 nested elements overflowed the stack (an abort, not an error).
+    // The XML reader recurses per element: 20,000 nested elements overflow its stack (an abort, not an error).
     if nesting_exceeds(text, MAX_NESTING) {
         return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
     }
