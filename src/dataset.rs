@@ -5,10 +5,15 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
-use dynforge_trainer::data::dataset::stats;
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::window::WindowSpec;
-use dynforge_trainer::training::session::{self, ModelKind};
+use dynforge_coordinator::prune::prune;
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::prepare::{ModelKind, prepare};
+use dynforge_dataset::window::WindowSpec;
+use dynforge_dataset::windows::stats;
+
+use std::sync::atomic::Ordering;
+
+use dynforge_trainer::training::session::SessionObserver;
 
 use crate::progress::{Bars, STOP, catch_interrupts};
 
@@ -30,7 +35,7 @@ pub struct PrepareArgs {
     model: ModelKind,
     /// Window geometry, as `train` takes it.
     #[arg(long = "window", value_name = "LEN:STRIDE:SSR", default_value = "64:64:16")]
-    window: String,
+    window: WindowSpec,
     /// Then delete the shards (recorded in DIR/pruned.txt): `train` with these settings, `merge` and `verify` still
     /// work; other settings, the torque and identification checks need shards.
     #[arg(long)]
@@ -43,7 +48,7 @@ pub struct StatsArgs {
     dir: PathBuf,
     /// Window geometries to count, as LEN:STRIDE:SSR (default: the paper's grid around its best, 64:64:16).
     #[arg(long = "window", value_name = "LEN:STRIDE:SSR")]
-    windows: Vec<String>,
+    windows: Vec<WindowSpec>,
     /// Also list the input features of a time step (for the first readable shard's robot).
     #[arg(long)]
     features: bool,
@@ -60,39 +65,26 @@ pub fn info(args: InfoArgs) -> Result<()> {
     Ok(())
 }
 
-fn parse_spec(s: &str) -> Result<WindowSpec> {
-    let parts: Vec<usize> = s
-        .split(':')
-        .map(str::parse)
-        .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("--window {s}: expected LEN:STRIDE:SSR"))?;
-    match parts[..] {
-        [len, stride, ssr] if len > 0 && stride > 0 && ssr > 0 => Ok(WindowSpec { len, stride, ssr }),
-        _ => anyhow::bail!("--window {s}: expected three positive numbers LEN:STRIDE:SSR"),
-    }
-}
-
-fn prepare(args: PrepareArgs) -> Result<()> {
-    let spec = parse_spec(&args.window)?;
+fn prepare_cache(args: PrepareArgs) -> Result<()> {
+    let spec = args.window;
     catch_interrupts();
-    let build = || {
-        let mut bars = Bars::new(1);
-        session::prepare(&args.dir, args.model, &spec, &STOP, &mut bars)
+    if args.model == ModelKind::Physics {
+        eprintln!("fitting the generator's parameter prior to {} robots", dynforge_dataset::evidence::PRIOR_ROBOTS);
+    }
+    let mut bars = Bars::new(1);
+    let progress = |what: &str, k, n| {
+        if what != "verify" {
+            bars.preprocessing(what, k, n);
+        }
+        !STOP.load(Ordering::Relaxed)
     };
     let held = if args.prune {
-        let mut held = String::new();
-        let pruned = dynforge_coordinator::prune::prune(
-            &args.dir,
-            |_, _| {},
-            || {
-                held = build().map_err(|e| e.to_string())?;
-                Ok(())
-            },
-        )?;
-        format!("{held}; {pruned} shards pruned")
+        let pruned = prune(&args.dir, args.model, &spec, progress)?;
+        format!("{}; {} shards pruned", pruned.cache, pruned.shards)
     } else {
-        build()?
+        prepare(&args.dir, args.model, &spec, progress)?
     };
+    drop(bars);
     println!("{}: {held}", args.dir.display());
     Ok(())
 }
@@ -100,32 +92,21 @@ fn prepare(args: PrepareArgs) -> Result<()> {
 pub fn run(cmd: DatasetCommand) -> Result<()> {
     let args = match cmd {
         DatasetCommand::Stats(args) => args,
-        DatasetCommand::Prepare(args) => return prepare(args),
+        DatasetCommand::Prepare(args) => return prepare_cache(args),
     };
     let specs: Vec<WindowSpec> = if args.windows.is_empty() {
         [(32, 64, 16), (64, 32, 16), (64, 64, 16), (64, 64, 8), (128, 64, 16)]
             .map(|(len, stride, ssr)| WindowSpec { len, stride, ssr })
             .to_vec()
     } else {
-        args.windows.iter().map(|s| parse_spec(s)).collect::<Result<_>>()?
+        args.windows
     };
     let s = stats(&args.dir, &specs)?;
     print!("{}: {}", args.dir.display(), s.report(&specs));
     if args.features
         && let Some(model) = &s.model
     {
-        let jac = JacobianFeatures::new(model);
-        let joints: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
-        println!(
-            "features per time step: {} = q, qd, tau of {} joints + {} Jacobian entries",
-            3 * joints.len() + jac.len(),
-            joints.len(),
-            jac.len()
-        );
-        for kind in ["q", "qd", "tau"] {
-            println!("  {kind}: {}", joints.join(" "));
-        }
-        println!("  jacobian: {}", jac.entries.iter().map(|e| e.name.as_str()).collect::<Vec<_>>().join(" "));
+        print!("{}", JacobianFeatures::new(model).describe(model));
     }
     for skipped in &s.skipped {
         eprintln!("skipped: {skipped}");

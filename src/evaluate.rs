@@ -4,8 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
+use dynforge_dataset::evaluation::{Report, write};
 use dynforge_trainer::checkpoint::Checkpoint;
-use dynforge_trainer::evaluation::{Report, evaluate_checkpoint, write};
+use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::training::session::Inputs;
 
 use crate::progress::bar;

@@ -6,12 +6,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use dynforge_coordinator::plan::Partition;
-use dynforge_coordinator::run::{GenerateConfig, Observer, Progress, generate as run_generate};
-use dynforge_coordinator::verify::verify as run_verify;
+use dynforge_coordinator::run::{self, GenerateConfig, Observer, Progress};
+use dynforge_coordinator::verify;
+use dynforge_proto::manifest::Partition;
+use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::engine::EngineKind;
-use dynforge_worker::simulate::SimConfig;
 use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
 #[derive(Args)]
@@ -188,7 +187,7 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
     );
     let start = Instant::now();
     let mut display = Display::new();
-    let progress = run_generate(&cfg, &mut display)?;
+    let progress = run::generate(&cfg, &mut display)?;
     drop(display);
     let wall = start.elapsed().as_secs_f64();
     let c = progress.cpu_seconds;
@@ -197,15 +196,7 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
         progress.total, progress, progress.resumed,
     );
-    if progress.failed > 0 {
-        bail!(
-            "{} job(s) failed (reasons in {} and the worker logs in {}); rerun the same command to retry them",
-            progress.failed,
-            args.out.join(dynforge_proto::run_dir::LEDGER).display(),
-            args.out.join(dynforge_proto::run_dir::LOGS).display()
-        );
-    }
-    Ok(())
+    Ok(progress.check_failures(&args.out)?)
 }
 
 pub fn status(args: StatusArgs) -> Result<()> {
@@ -218,60 +209,32 @@ pub fn status(args: StatusArgs) -> Result<()> {
 }
 
 pub fn verify(args: VerifyArgs) -> Result<()> {
-    let bar = if std::io::stderr().is_terminal() { ProgressBar::new(0) } else { ProgressBar::hidden() };
-    let report = run_verify(&args.dir, |k, n| {
+    let bar = crate::progress::bar("{bar:40} {pos}/{len}");
+    let report = verify::verify(&args.dir, |k, n| {
         bar.set_length(n as u64);
         bar.set_position(k as u64);
     })?;
     bar.finish_and_clear();
     print!("{}: {report}", args.dir.display());
     if args.repair && !(report.missing.is_empty() && report.corrupt.is_empty()) {
-        let marked = dynforge_coordinator::verify::repair(&args.dir, &report)?;
+        let marked = verify::repair(&args.dir, &report)?;
         bail!("{marked} job(s) recorded as failed for their shards; rerun the `generate` command to make them again");
     }
-    if !report.is_ok() {
-        let hint =
-            if report.missing.is_empty() && report.corrupt.is_empty() { "" } else { " (`--repair` redoes them)" };
-        bail!("{} missing, {} extra, {} corrupt{hint}", report.missing.len(), report.extra.len(), report.corrupt.len());
+    if report.is_ok() {
+        println!("{}", report.intact());
     }
-    let pruned = if report.pruned > 0 { " (or pruned, its data cached)" } else { "" };
-    println!("ok: every recorded shard is present{pruned} and intact");
-    if report.failed > 0 {
-        bail!("incomplete: {} job(s) failed; rerun the same `generate` command to retry them", report.failed);
-    }
+    report.verdict()?;
     Ok(())
 }
 
 pub fn merge(args: MergeArgs) -> Result<()> {
-    let bar = if std::io::stderr().is_terminal() { ProgressBar::new(0) } else { ProgressBar::hidden() };
-    // Which caches the partitions share (an error now, before anything is written, if pruned data would be lost).
-    let caches = dynforge_trainer::data::partitions::plan(&args.parts).map_err(anyhow::Error::msg)?;
-    let mut combined = Vec::new();
-    let merged = dynforge_coordinator::merge::merge(
-        &args.parts,
-        &args.out,
-        |k, n| {
-            bar.set_length(n as u64);
-            bar.set_position(k as u64);
-        },
-        |manifest| {
-            combined = caches.combine(&args.parts, &args.out, manifest)?;
-            Ok(())
-        },
-    )?;
+    let bar = crate::progress::bar("{bar:40} {pos}/{len}");
+    let merged = dynforge_coordinator::merge::merge(&args.parts, &args.out, |k, n| {
+        bar.set_length(n as u64);
+        bar.set_position(k as u64);
+    })?;
     bar.finish_and_clear();
-    println!(
-        "{}: merged {} partitions: {} shards ({} hard-linked, {} copied, {} pruned), {} ledger records, {} caches \
-         combined",
-        args.out.display(),
-        merged.partitions,
-        merged.shards + merged.pruned,
-        merged.shards - merged.copied,
-        merged.copied,
-        merged.pruned,
-        merged.ledger_entries,
-        combined.len()
-    );
+    println!("{}: {merged}", args.out.display());
     Ok(())
 }
 

@@ -5,11 +5,11 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_trainer::model::Preset;
+use dynforge_trainer::training::recipe::RecipeFlags;
 use dynforge_trainer::training::resumable;
 use dynforge_trainer::training::session::Session;
 
 use crate::progress::{Bars, STOP, catch_interrupts};
-use crate::train::RecipeArgs;
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -26,7 +26,7 @@ pub struct PipelineArgs {
     #[arg(long, default_value_t = 1)]
     dataset_seed: u64,
     #[command(flatten)]
-    recipe: RecipeArgs,
+    recipe: RecipeFlags,
 }
 
 pub fn run(args: PipelineArgs) -> Result<()> {

@@ -78,18 +78,7 @@ impl TrainObserver for Bars {
     }
 
     fn epoch(&mut self, m: &EpochMetrics, best: bool) {
-        self.line(&format!(
-            "epoch {:>3}: train loss {:.4}, validation loss {:.4}, R2 {:.4}, RMSE {:.4}, {:.0} examples/s, {:.1} s ({:.1} CPU s){}",
-            m.epoch,
-            m.train_loss,
-            m.validation_loss,
-            m.validation_r2,
-            m.validation_rmse,
-            m.windows_per_second,
-            m.seconds,
-            m.cpu_seconds,
-            if best { " (best)" } else { "" }
-        ));
+        self.line(&format!("{m}{}", if best { " (best)" } else { "" }));
     }
 }
 

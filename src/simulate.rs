@@ -5,10 +5,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use dynforge_proto::sim::EngineKind;
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::engine::EngineKind;
 use dynforge_worker::job::{Job, Outcome, Runner};
-use dynforge_worker::simulate::SimConfig;
 
 #[derive(Args)]
 pub struct SimulateArgs {

@@ -4,11 +4,12 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, ValueEnum};
+use dynforge_dataset::evaluation::sweep::Grid;
 use dynforge_trainer::model::Preset;
-use dynforge_trainer::sweep::{Grid, Sweep};
+use dynforge_trainer::sweep::Sweep;
+use dynforge_trainer::training::recipe::RecipeFlags;
 
 use crate::progress::{Bars, STOP, catch_interrupts};
-use crate::train::RecipeArgs;
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum GridArg {
@@ -29,7 +30,7 @@ pub struct SweepArgs {
     grid: GridArg,
     /// The estimator of the dataset grid and everything the grids do not set [default epochs: 5].
     #[command(flatten)]
-    recipe: RecipeArgs,
+    recipe: RecipeFlags,
 }
 
 pub fn run(args: SweepArgs) -> Result<()> {

@@ -5,9 +5,9 @@
 
 use std::path::Path;
 
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_worker::job::{Job, Outcome, Runner};
-use dynforge_worker::simulate::SimConfig;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 

@@ -5,7 +5,7 @@ mod common;
 use common::dynforge;
 use dynforge_proto::{LABELS, LabelKind};
 use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_robot::parameters::labels;
+use dynforge_robot::parameters::labels_of;
 
 fn stderr(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
@@ -47,8 +47,8 @@ fn identify_calibrates_a_wrong_urdf_to_the_logs_of_the_robot() {
     // URDF's (off by 4-280 %). Coulomb's column, sign(qd), is excited by every move: within 1 % (0.2 % measured).
     // Viscous competes with the inertial terms in slow moves, and its precision follows how fast its joint moves:
     // within 10 % (0.0-2 % measured, 6 % on joint 3, from two 7 s logs).
-    let truth = labels(&generate(&GeneratorConfig::default(), 3, 1).unwrap().model).unwrap();
-    let calibrated = labels(&dynforge_robot::urdf::load(&out).unwrap()).unwrap();
+    let truth = labels_of(&generate(&GeneratorConfig::default(), 3, 1).unwrap().model).unwrap();
+    let calibrated = labels_of(&dynforge_robot::urdf::load(&out).unwrap()).unwrap();
     let written = std::fs::read_to_string(&out).unwrap();
     assert!(written.ends_with(&format!("{extras}\n")) || written.ends_with(extras), "the user's elements were lost");
     assert_eq!(written.lines().count(), user.lines().count(), "only <inertial> and <dynamics> contents change");

@@ -149,7 +149,7 @@ fn train_evaluate_and_estimate_a_small_dataset() {
         assert_eq!(p["estimator"], v["parameters"][l.name]["estimator"], "{}", l.name);
     }
     let model = dynforge_robot::urdf::load(&urdf).unwrap();
-    let y = dynforge_robot::parameters::labels(&model).unwrap();
+    let y = dynforge_robot::parameters::labels_of(&model).unwrap();
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
         let est = v["parameters"][l.name]["value"].as_f64().unwrap();
         let projected = v["projections"].as_array().unwrap().iter().any(|p| p.as_str().unwrap().contains(l.name));
@@ -323,8 +323,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         .find(|p| {
             let r = dynforge_proto::shard::robot_of_file_name(p.file_name().unwrap().to_str().unwrap()).unwrap();
             let (seed, fraction) = (0, 0.34);
-            dynforge_trainer::data::split::split_of(seed, r, fraction)
-                == dynforge_trainer::data::split::Split::Validation
+            dynforge_dataset::split::split_of(seed, r, fraction) == dynforge_dataset::split::Split::Validation
         })
         .expect("a validation robot");
     let urdf = dir.path().join("estimated.urdf");
@@ -345,7 +344,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     assert!(refined < 1e-2, "{v}");
     let truth = dynforge_recording::read(&validation_shard, None).unwrap().labels.unwrap();
     let model = dynforge_robot::urdf::load(&urdf).unwrap();
-    let written = dynforge_robot::parameters::labels(&model).unwrap();
+    let written = dynforge_robot::parameters::labels_of(&model).unwrap();
     let mut friction_errors = Vec::new();
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
         let value = v["parameters"][l.name]["value"].as_f64().unwrap();

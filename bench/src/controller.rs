@@ -7,10 +7,10 @@
 use std::collections::BTreeMap;
 
 use anyhow::{Context, Result};
+use dynforge_proto::sim::EngineKind;
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::engine::EngineKind;
 use dynforge_worker::job::{Job, Runner};
-use dynforge_worker::simulate::SimConfig;
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {

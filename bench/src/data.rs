@@ -7,10 +7,10 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
+use dynforge_dataset::cache::windows::{CachedWindows, cache_path};
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::window::WindowSpec;
 use dynforge_robot::urdf;
-use dynforge_trainer::data::cache::{cache_path, load_or_build};
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::window::WindowSpec;
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
@@ -34,10 +34,10 @@ fn main() -> Result<()> {
     let features = JacobianFeatures::new(&model);
     let _ = std::fs::remove_file(cache_path(&dir, &spec, &features)?);
     let start = Instant::now();
-    let (cold, skipped) = load_or_build(&dir, &spec, &features, |_, _| true)?;
+    let (cold, skipped) = CachedWindows::load_or_build(&dir, &spec, &features, |_, _| true)?;
     let cold_s = start.elapsed().as_secs_f64();
     let start = Instant::now();
-    let (warm, _) = load_or_build(&dir, &spec, &features, |_, _| true)?;
+    let (warm, _) = CachedWindows::load_or_build(&dir, &spec, &features, |_, _| true)?;
     let warm_s = start.elapsed().as_secs_f64();
     assert!(warm.hit && !cold.hit);
     println!(

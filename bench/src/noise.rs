@@ -8,13 +8,14 @@
 //! (levels in units of each joint's torque RMS; --logs: recordings per robot summed, all when 0).
 
 use anyhow::{Context, Result, bail};
+use dynforge_dataset::cache::evidence::PhysicsSet;
+use dynforge_dataset::evidence::NOISE_FLOOR;
+use dynforge_dataset::metrics::score;
+use dynforge_dataset::split::{Split, split_of};
 use dynforge_identify::Evidence;
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_robot::rng::Rng;
-use dynforge_trainer::data::physics::{self, NOISE_FLOOR};
-use dynforge_trainer::data::split::{Split, split_of};
 use dynforge_trainer::inference::Predictor;
-use dynforge_trainer::metrics::score;
 
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -41,7 +42,7 @@ fn main() -> Result<()> {
     let predictor = Predictor::load(ckpt.as_ref())?;
     let c = &predictor.checkpoint;
     let prior = c.parameter_prior().context("not a physics checkpoint")?;
-    let (set, _) = physics::load_or_build(data.as_ref(), &c.window_spec(), &prior, |_, _| true)?;
+    let (set, _) = PhysicsSet::load_or_build(data.as_ref(), &c.window_spec(), &prior, |_, _| true)?;
     let validation = |r: u64| split_of(c.split_seed, r, c.validation_fraction) == Split::Validation;
     let mut robots: std::collections::BTreeMap<u64, (Evidence, [f64; NUM_LABELS], usize)> = Default::default();
     for i in (0..set.recordings.len()).filter(|&i| validation(set.recordings.robots[i])) {
@@ -58,7 +59,7 @@ fn main() -> Result<()> {
     }
     let truth: Vec<[f64; NUM_LABELS]> = robots.values().map(|(_, y, _)| *y).collect();
     let scale = c.standardizer().label_std;
-    let group = |s: &dynforge_trainer::metrics::Scores, kinds: &[LabelKind]| {
+    let group = |s: &dynforge_dataset::metrics::Scores, kinds: &[LabelKind]| {
         let v: Vec<f64> =
             (0..NUM_LABELS).filter(|&k| kinds.contains(&LABELS[k].kind)).map(|k| s.targets[k].r2).collect();
         v.iter().sum::<f64>() / v.len() as f64

@@ -6,12 +6,12 @@
 //! Usage: dynforge-bench-noisy-logs CHECKPOINT DATA [--levels 0,1e-3,1e-2] [--robots N]
 
 use anyhow::{Context, Result, bail};
+use dynforge_dataset::evidence::recording_evidence;
+use dynforge_dataset::metrics::score;
+use dynforge_dataset::split::{Split, split_of};
 use dynforge_proto::NUM_LABELS;
 use dynforge_robot::rng::Rng;
-use dynforge_trainer::data::physics::recording_evidence;
-use dynforge_trainer::data::split::{Split, split_of};
 use dynforge_trainer::inference::Predictor;
-use dynforge_trainer::metrics::score;
 
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -86,12 +86,12 @@ fn main() -> Result<()> {
             truth.push(rec.labels.context("the shard has no labels")?);
             let (_, whole) = recording_evidence(&rec, &prior, &c.window_spec())?;
             floor.push(predictor.predict_evidence(&[whole])?[0]);
-            let e = predictor.estimate(dir, &[&rec])?;
+            let e = predictor.estimate(&[&rec])?;
             let mut n = e.noise.clone();
             n.sort_by(f64::total_cmp);
             noise.push(n[n.len() / 2]);
             weighted.push(e.labels);
-            refined.push(predictor.refine(dir, &rec, &e)?.labels);
+            refined.push(predictor.refine(&rec, &e)?.labels);
         }
         let r2 = |p: &[[f64; NUM_LABELS]]| score(p, &truth, &scale).r2;
         noise.sort_by(f64::total_cmp);

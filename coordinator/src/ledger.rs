@@ -13,8 +13,8 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use dynforge_proto::job::Job;
 use dynforge_shard::content_hash;
-use dynforge_worker::job::{Job, shard_name};
 
 /// How a job ended.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -119,7 +119,7 @@ impl Entry {
 
     /// The file name of the job's shard (`engine` from the run's manifest).
     pub fn shard_name(&self, seed: u64, engine: &str) -> String {
-        shard_name(&self.job(seed), engine)
+        self.job(seed).shard_name(engine)
     }
 }
 

@@ -9,7 +9,6 @@
 
 pub mod ledger;
 pub mod lock;
-pub mod manifest;
 pub mod merge;
 pub mod plan;
 pub mod prune;

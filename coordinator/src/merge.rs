@@ -7,18 +7,18 @@
 //! hash or pruned. The output then needs no further check, and training reads it like any run directory.
 //!
 //! Pruned partitions (`dataset prepare --prune`: shards deleted once cached) merge into a pruned directory: their
-//! pruned lists are joined, and the caller's `caches` step writes the output's caches from the partitions' (the
-//! trainer knows their format) before the manifest, which comes last.
+//! pruned lists are joined, and the output's caches are combined from the partitions' (`dynforge_dataset::cache::
+//! partitions`) before the manifest, which comes last.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use dynforge_dataset::cache::partitions::{self, PartitionsError};
+use dynforge_proto::manifest::{Manifest, ManifestError, Partition};
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
 use crate::ledger::{self, Status};
 use crate::lock::RunLock;
-use crate::manifest::{Manifest, ManifestError};
-use crate::plan::Partition;
 use crate::verify::{VerifyError, verify};
 
 #[derive(Debug, thiserror::Error)]
@@ -35,7 +35,7 @@ pub enum MergeError {
     )]
     OutputNotEmpty(String),
     #[error("combining the partitions' caches: {0}")]
-    Caches(String),
+    Caches(#[from] PartitionsError),
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
     #[error(transparent)]
@@ -58,19 +58,59 @@ pub struct Merged {
     pub ledger_entries: usize,
     /// Shards recorded pruned in the partitions (not linked: their data are in the caches).
     pub pruned: usize,
+    /// The cache files combined from the partitions' (file names in `out/cache/`).
+    pub caches: Vec<String>,
+}
+
+impl std::fmt::Display for Merged {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "merged {} partitions: {} shards ({} hard-linked, {} copied, {} pruned), {} ledger records, {} caches \
+             combined",
+            self.partitions,
+            self.shards + self.pruned,
+            self.shards - self.copied,
+            self.copied,
+            self.pruned,
+            self.ledger_entries,
+            self.caches.len()
+        )
+    }
 }
 
 /// Merges the partition directories `parts` into the new directory `out`. `progress(k, n)` follows the verification
-/// of each partition's shards. `caches(manifest)` is called once the ledger, the shards and the pruned list are in
-/// place, with the bytes `out`'s manifest will have, and before that manifest is written.
-pub fn merge(
-    parts: &[PathBuf],
-    out: &Path,
-    mut progress: impl FnMut(usize, usize),
-    caches: impl FnOnce(&[u8]) -> Result<(), String>,
-) -> Result<Merged, MergeError> {
-    let io = |path: &Path, source| MergeError::Io { path: path.display().to_string(), source };
-    // Every partition's settings, and the set of partitions.
+/// of each partition's shards.
+pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Merged, MergeError> {
+    let (first, by_index) = one_run(parts)?;
+    for dir in parts {
+        check_complete(dir, &mut progress)?;
+    }
+    // Which caches the partitions share: an error now, before anything is written, if pruned data would be lost.
+    let caches = partitions::plan(parts)?;
+
+    // The output: ours before anything is written.
+    let _lock = RunLock::acquire(out, std::time::Duration::ZERO)?;
+    let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
+    if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
+        return Err(MergeError::OutputNotEmpty(out.display().to_string()));
+    }
+    let mut merged = join_ledgers_and_shards(&by_index, out, &first)?;
+    merged.partitions = parts.len();
+    let manifest = Manifest { partition: Partition::WHOLE, ..first };
+    merged.caches = caches.combine(parts, out, manifest.to_toml().as_bytes())?;
+    // Last, so that an interrupted merge leaves no directory that passes for a finished run.
+    manifest.create_or_check(out)?;
+    Ok(merged)
+}
+
+fn io(path: &Path, source: std::io::Error) -> MergeError {
+    MergeError::Io { path: path.display().to_string(), source }
+}
+
+/// The manifest of the run the partitions `parts` make (partition 0's), and the partitions by index; an error
+/// unless they are exactly the `n` partitions of one run.
+fn one_run(parts: &[PathBuf]) -> Result<(Manifest, BTreeMap<u32, &PathBuf>), MergeError> {
     let mut manifests = Vec::new();
     for dir in parts {
         let m = Manifest::load(dir)?.ok_or_else(|| MergeError::NoManifest(dir.display().to_string()))?;
@@ -108,42 +148,43 @@ pub fn merge(
     if !missing.is_empty() {
         return Err(MergeError::Set(format!("partition(s) {} missing", missing.join(", "))));
     }
-    // Each complete and intact.
-    for dir in parts {
-        let report = verify(dir, &mut progress)?;
-        let problem = if report.live.is_some() {
-            "a generation is still running in it".to_string()
-        } else if !report.is_ok() {
-            format!("does not verify: {}", report.to_string().trim_end().replace('\n', "; "))
-        } else if report.pending + report.failed > 0 {
-            format!(
-                "incomplete: {} job(s) pending, {} failed; rerun its generate command",
-                report.pending, report.failed
-            )
-        } else {
-            continue;
-        };
-        return Err(MergeError::Partition { dir: dir.display().to_string(), problem });
-    }
+    Ok((first, by_index))
+}
 
-    // The output: ours before anything is written.
-    let _lock = RunLock::acquire(out, std::time::Duration::ZERO)?;
-    let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
-    if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
-        return Err(MergeError::OutputNotEmpty(out.display().to_string()));
-    }
+/// An error unless the partition `dir` is complete and intact (and no generation runs in it).
+fn check_complete(dir: &Path, progress: &mut impl FnMut(usize, usize)) -> Result<(), MergeError> {
+    let report = verify(dir, progress)?;
+    let problem = if report.live.is_some() {
+        "a generation is still running in it".to_string()
+    } else if !report.is_ok() {
+        format!("does not verify: {}", report.to_string().trim_end().replace('\n', "; "))
+    } else if report.pending + report.failed > 0 {
+        format!("incomplete: {} job(s) pending, {} failed; rerun its generate command", report.pending, report.failed)
+    } else {
+        return Ok(());
+    };
+    Err(MergeError::Partition { dir: dir.display().to_string(), problem })
+}
+
+/// Every partition's ledger records into `out`'s ledger, their shards hard-linked (or copied) into `out/shards/`,
+/// and their pruned lists joined.
+fn join_ledgers_and_shards(
+    by_index: &BTreeMap<u32, &PathBuf>,
+    out: &Path,
+    run: &Manifest,
+) -> Result<Merged, MergeError> {
     let shards_out = out.join(SHARDS);
     std::fs::create_dir_all(&shards_out).map_err(|e| io(&shards_out, e))?;
     let (mut ledger, _) = ledger::Ledger::open(&out.join(LEDGER))?;
-    let engine = first.sim.engine.name();
-    let mut merged = Merged { partitions: parts.len(), ..Merged::default() };
+    let engine = run.sim.engine.name();
+    let mut merged = Merged::default();
     let mut pruned_out = std::collections::BTreeSet::new();
     for dir in by_index.values() {
         let entries = ledger::read(&dir.join(LEDGER))?;
         let pruned = run_dir::read_pruned(dir).map_err(|e| io(&dir.join(run_dir::PRUNED), e))?;
         for e in ledger::latest(&entries).values() {
             if let Status::Done { .. } = e.status {
-                let name = e.shard_name(first.seed, engine);
+                let name = e.shard_name(run.seed, engine);
                 let (from, to) = (dir.join(SHARDS).join(&name), shards_out.join(&name));
                 if pruned.contains(&name) && !from.exists() {
                     pruned_out.insert(name);
@@ -163,9 +204,5 @@ pub fn merge(
     if !pruned_out.is_empty() {
         run_dir::write_pruned(out, &pruned_out).map_err(|e| io(&out.join(run_dir::PRUNED), e))?;
     }
-    let manifest = Manifest { partition: Partition::WHOLE, ..first };
-    caches(manifest.to_toml().as_bytes()).map_err(MergeError::Caches)?;
-    // Last, so that an interrupted merge leaves no directory that passes for a finished run.
-    manifest.create_or_check(out)?;
     Ok(merged)
 }

@@ -1,47 +1,8 @@
 //! The jobs of a run: robot-major order (consecutive jobs share a robot, so a worker plans each tour once), and
 //! deterministic partitions so several hosts can split one dataset.
 
-use std::fmt;
-use std::str::FromStr;
-
-use dynforge_worker::job::Job;
-use serde::{Deserialize, Serialize};
-
-/// `i/n`: this host runs the robots `r` with `r % n == i`. The union of `0/n .. (n-1)/n` is the whole run, and
-/// partitions never share a robot (so they never share a shard).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct Partition {
-    pub index: u32,
-    pub count: u32,
-}
-
-impl Partition {
-    pub const WHOLE: Partition = Partition { index: 0, count: 1 };
-
-    pub fn contains(&self, robot: u64) -> bool {
-        robot % self.count as u64 == self.index as u64
-    }
-}
-
-impl fmt::Display for Partition {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}/{}", self.index, self.count)
-    }
-}
-
-impl FromStr for Partition {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let (i, n) = s.split_once('/').ok_or_else(|| format!("partition '{s}' is not of the form i/n"))?;
-        let index: u32 = i.trim().parse().map_err(|_| format!("partition '{s}': '{i}' is not a number"))?;
-        let count: u32 = n.trim().parse().map_err(|_| format!("partition '{s}': '{n}' is not a number"))?;
-        if count == 0 || index >= count {
-            return Err(format!("partition '{s}': i must be in 0..n (n > 0)"));
-        }
-        Ok(Partition { index, count })
-    }
-}
+use dynforge_proto::job::Job;
+pub use dynforge_proto::manifest::Partition;
 
 /// Stable identity of a job within a run, recorded in the ledger.
 pub fn job_id(job: &Job, trajectories: u32) -> u64 {

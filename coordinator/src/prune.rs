@@ -5,43 +5,58 @@
 use std::path::Path;
 use std::time::Duration;
 
+use dynforge_dataset::prepare::{ModelKind, PrepareError, prepare};
+use dynforge_dataset::window::WindowSpec;
+use dynforge_proto::manifest::Manifest;
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
 use crate::ledger::{self, Status};
 use crate::lock::RunLock;
-use crate::manifest::Manifest;
 use crate::verify::{VerifyError, verify};
 
 #[derive(Debug, thiserror::Error)]
 pub enum PruneError {
     #[error("{dir}: cannot prune: {problem}")]
     NotReady { dir: String, problem: String },
-    #[error("{dir}: caching before pruning: {problem}; no shard was deleted")]
-    Cache { dir: String, problem: String },
+    #[error("{dir}: caching before pruning: {source}; no shard was deleted")]
+    Cache { dir: String, source: PrepareError },
     #[error(transparent)]
     Verify(#[from] VerifyError),
     #[error(transparent)]
-    Manifest(#[from] crate::manifest::ManifestError),
+    Manifest(#[from] dynforge_proto::manifest::ManifestError),
     #[error(transparent)]
     Ledger(#[from] ledger::LedgerError),
     #[error(transparent)]
     Lock(#[from] crate::lock::LockError),
 }
 
+/// What a prune did: the cache that holds the shards' data (as `dynforge_dataset::prepare` describes it), and how
+/// many shards were deleted.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Pruned {
+    pub cache: String,
+    pub shards: usize,
+}
+
 /// Prunes the run directory `dir`: takes its lock (no generate may change it meanwhile), checks that it verifies
-/// complete, calls `cache()` to write the caches that will hold the shards' data, then records every present shard
-/// in the pruned list and deletes it. Returns the shards deleted. `progress` follows the verification.
+/// complete, builds the cache of the estimator `kind` with window geometry `spec` that will hold the shards' data
+/// (`dynforge_dataset::prepare`), then records every present shard in the pruned list and deletes it.
+/// `progress(stage, done, total)` follows the verification and the caching; `false` stops (before any shard is
+/// deleted).
 ///
 /// The list is written before any file is deleted: a crash in between leaves shards both listed and present, which
 /// read as present, and the next prune deletes them.
 pub fn prune(
     dir: &Path,
-    progress: impl FnMut(usize, usize),
-    cache: impl FnOnce() -> Result<(), String>,
-) -> Result<usize, PruneError> {
+    kind: ModelKind,
+    spec: &WindowSpec,
+    mut progress: impl FnMut(&str, usize, usize) -> bool,
+) -> Result<Pruned, PruneError> {
     let _lock = RunLock::acquire(dir, Duration::ZERO)?;
     let not_ready = |problem: String| PruneError::NotReady { dir: dir.display().to_string(), problem };
-    let report = verify(dir, progress)?;
+    let report = verify(dir, |k, n| {
+        progress("verify", k, n);
+    })?;
     // The lock is ours: a live holder seen by verify is this process.
     if !report.is_ok() {
         return Err(not_ready(format!("it does not verify: {}", report.to_string().trim_end().replace('\n', "; "))));
@@ -53,7 +68,8 @@ pub fn prune(
             report.pending, report.failed
         )));
     }
-    cache().map_err(|problem| PruneError::Cache { dir: dir.display().to_string(), problem })?;
+    let cache = prepare(dir, kind, spec, &mut progress)
+        .map_err(|source| PruneError::Cache { dir: dir.display().to_string(), source })?;
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let engine = manifest.sim.engine.name();
     let entries = ledger::read(&dir.join(LEDGER))?;
@@ -74,5 +90,5 @@ pub fn prune(
         std::fs::remove_file(&path).map_err(|e| io(&path, e))?;
     }
     std::fs::File::open(&shards).and_then(|d| d.sync_all()).map_err(|e| io(&shards, e))?;
-    Ok(present.len())
+    Ok(Pruned { cache, shards: present.len() })
 }

@@ -8,16 +8,16 @@ use dynforge_ipc::{RunId, StatusMsg, StatusReader};
 use dynforge_proto::run_dir::LEDGER;
 
 use crate::ledger;
-use crate::manifest::Manifest;
 use crate::plan;
 use crate::run::Progress;
+use dynforge_proto::manifest::Manifest;
 
 #[derive(Debug, thiserror::Error)]
 pub enum StatusError {
     #[error("{0}: no run manifest (not a dynforge generate directory)")]
     NoManifest(String),
     #[error(transparent)]
-    Manifest(#[from] crate::manifest::ManifestError),
+    Manifest(#[from] dynforge_proto::manifest::ManifestError),
     #[error(transparent)]
     Ledger(#[from] ledger::LedgerError),
     #[error(transparent)]

@@ -4,13 +4,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 
 use dynforge_proto::LABELS;
+use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
-use dynforge_worker::job::{Job, shard_name};
 
 use crate::ledger::{self, Status};
-use crate::manifest::Manifest;
 use crate::plan;
+use dynforge_proto::manifest::Manifest;
 
 /// What `verify` found.
 #[derive(Debug, Default, Clone, PartialEq)]
@@ -40,6 +40,33 @@ impl Report {
     pub fn is_ok(&self) -> bool {
         self.missing.is_empty() && self.extra.is_empty() && self.corrupt.is_empty()
     }
+
+    /// What an intact run's report says of its shards.
+    pub fn intact(&self) -> String {
+        let pruned = if self.pruned > 0 { " (or pruned, its data cached)" } else { "" };
+        format!("ok: every recorded shard is present{pruned} and intact")
+    }
+
+    /// The verdict `dynforge verify` exits with: damaged shards first, then failed jobs.
+    pub fn verdict(&self) -> Result<(), Unverified> {
+        if !self.is_ok() {
+            let (missing, extra, corrupt) = (self.missing.len(), self.extra.len(), self.corrupt.len());
+            return Err(Unverified::Damaged { missing, extra, corrupt });
+        }
+        match self.failed {
+            0 => Ok(()),
+            n => Err(Unverified::Failed(n)),
+        }
+    }
+}
+
+/// Why a run directory does not verify.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Unverified {
+    #[error("{missing} missing, {extra} extra, {corrupt} corrupt{}", if *missing + *corrupt > 0 { " (`--repair` redoes them)" } else { "" })]
+    Damaged { missing: usize, extra: usize, corrupt: usize },
+    #[error("incomplete: {0} job(s) failed; rerun the same `generate` command to retry them")]
+    Failed(usize),
 }
 
 impl std::fmt::Display for Report {
@@ -74,7 +101,7 @@ pub enum VerifyError {
     #[error("{0}: no run manifest here (not a dynforge generate directory)")]
     NoManifest(String),
     #[error(transparent)]
-    Manifest(#[from] crate::manifest::ManifestError),
+    Manifest(#[from] dynforge_proto::manifest::ManifestError),
     #[error(transparent)]
     Ledger(#[from] ledger::LedgerError),
     #[error("{path}: {source}")]
@@ -135,7 +162,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
         match &e.status {
             Status::Done { samples, shard_hash } => {
                 report.done += 1;
-                let name = shard_name(&job, engine);
+                let name = job.shard_name(engine);
                 let path = shards.join(&name);
                 expected_files.insert(name.clone());
                 if !path.exists() {

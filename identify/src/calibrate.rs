@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::{ReadError, read};
 use dynforge_robot::Model;
-use dynforge_robot::parameters::{dynamic_parameters, labels, with_labels};
+use dynforge_robot::parameters::{dynamic_parameters, labels_of, model_with_labels};
 
 use crate::IdentifyError;
 use crate::normal::NormalEquations;
@@ -43,12 +43,12 @@ pub struct Calibration {
 /// The 38 labels of the 6-joint `model` that best explain the recordings summed in `ne`, with the description's
 /// own values as prior: each label believed to within `spread` of its value (relative; see the floors above).
 pub fn calibrate(model: &Model, ne: &NormalEquations, spread: f64) -> Result<Calibration, IdentifyError> {
-    let before = labels(model).map_err(|_| IdentifyError::Dof(model.dof(), 6))?;
+    let before = labels_of(model).map_err(|_| IdentifyError::Dof(model.dof(), 6))?;
     let std: [f64; NUM_LABELS] = std::array::from_fn(|k| (spread * before[k].abs()).max(spread_floor(LABELS[k].kind)));
     let ls = least_squares(ne)?;
     let refined = refine(ne, model, &Prior::new(before, &std)?, ls.sigma)?;
     let (calibrated, projections) =
-        with_labels(model, &refined.labels).map_err(|_| IdentifyError::Dof(model.dof(), 6))?;
+        model_with_labels(model, &refined.labels).map_err(|_| IdentifyError::Dof(model.dof(), 6))?;
     Ok(Calibration {
         before,
         labels: refined.labels,

@@ -6,9 +6,9 @@ use dynforge_robot::parameters::{dynamic_parameters, link_label};
 use dynforge_robot::spatial::Inertia;
 
 /// The full parameter vector `pi` of `template` with the 38 labels `y` put in, everything else (COM x and y,
-/// products of inertia, link 1's mass and COM) kept from `template`. Unlike `parameters::with_labels` nothing is
+/// products of inertia, link 1's mass and COM) kept from `template`. Unlike `parameters::model_with_labels` nothing is
 /// projected: the map is smooth (polynomial) in `y`, as a Gauss-Newton solve needs.
-pub fn label_parameters(template: &Model, y: &[f64; NUM_LABELS]) -> Vec<f64> {
+pub fn parameters_of_labels(template: &Model, y: &[f64; NUM_LABELS]) -> Vec<f64> {
     let n = template.dof();
     let mut pi = dynamic_parameters(template);
     let mut mass: Vec<f64> = (0..n).map(|i| template.inertia(i).mass).collect();
@@ -37,7 +37,7 @@ pub fn label_parameters(template: &Model, y: &[f64; NUM_LABELS]) -> Vec<f64> {
 /// The 38 labels of a full parameter vector `pi` (6 joints): per link the mass, the COM along the link axis and the
 /// moments about the COM, per joint the friction pair. Pure arithmetic, no physical check: `pi` may be any point of
 /// parameter space, e.g. a posterior mean (a mass at or below zero gives a non-finite or meaningless COM).
-pub fn parameter_labels(pi: &[f64]) -> [f64; NUM_LABELS] {
+pub fn labels_of_parameters(pi: &[f64]) -> [f64; NUM_LABELS] {
     let ni = dynforge_proto::params::INERTIAL_PARAMS_PER_LINK;
     let nf = dynforge_proto::params::FRICTION_PARAMS_PER_JOINT;
     let friction = ni * 6;
@@ -58,13 +58,13 @@ pub fn parameter_labels(pi: &[f64]) -> [f64; NUM_LABELS] {
 mod tests {
     use super::*;
     use dynforge_robot::generator::{GeneratorConfig, generate};
-    use dynforge_robot::parameters::{labels, with_labels};
+    use dynforge_robot::parameters::{labels_of, model_with_labels};
 
     #[test]
     fn labels_of_a_robots_parameters_are_its_labels() {
         for id in 0..5 {
             let a = generate(&GeneratorConfig::default(), 3, id).unwrap().model;
-            for (x, y) in parameter_labels(&dynamic_parameters(&a)).iter().zip(labels(&a).unwrap()) {
+            for (x, y) in labels_of_parameters(&dynamic_parameters(&a)).iter().zip(labels_of(&a).unwrap()) {
                 assert!((x - y).abs() <= 1e-12 * y.abs().max(1e-9), "{x} vs {y}");
             }
         }
@@ -73,7 +73,7 @@ mod tests {
     #[test]
     fn a_robots_own_labels_give_back_its_parameters() {
         let a = generate(&GeneratorConfig::default(), 3, 2).unwrap().model;
-        for (x, r) in label_parameters(&a, &labels(&a).unwrap()).iter().zip(dynamic_parameters(&a)) {
+        for (x, r) in parameters_of_labels(&a, &labels_of(&a).unwrap()).iter().zip(dynamic_parameters(&a)) {
             assert!((x - r).abs() <= 1e-12 * r.abs().max(1e-6), "{x} vs {r}");
         }
     }
@@ -83,12 +83,12 @@ mod tests {
         let cfg = GeneratorConfig::default();
         let a = generate(&cfg, 3, 0).unwrap().model;
         let b = generate(&cfg, 3, 1).unwrap().model;
-        let yb = labels(&b).unwrap();
-        // `with_labels` (projected, but b's labels are physical) is the reference.
-        let (reference, notes) = with_labels(&a, &yb).unwrap();
+        let yb = labels_of(&b).unwrap();
+        // `model_with_labels` (projected, but b's labels are physical) is the reference.
+        let (reference, notes) = model_with_labels(&a, &yb).unwrap();
         assert!(notes.is_empty(), "{notes:?}");
-        let ours = label_parameters(&a, &yb);
-        // Link 1's Ixx, Iyy (entries 4 and 6) are unlabelled: `with_labels` may grow them to keep link 1 physical.
+        let ours = parameters_of_labels(&a, &yb);
+        // Link 1's Ixx, Iyy (entries 4 and 6) are unlabelled: `model_with_labels` may grow them to keep link 1 physical.
         let compared = ours.iter().zip(dynamic_parameters(&reference)).enumerate().filter(|(k, _)| *k != 4 && *k != 6);
         for (k, (x, r)) in compared {
             assert!((x - r).abs() <= 1e-12 * r.abs().max(1e-6), "parameter {k}: {x} vs {r}");

@@ -24,7 +24,7 @@ mod samples;
 mod solve;
 
 pub use calibrate::{CalibrateFilesError, Calibration, FileCalibration, calibrate, calibrate_files};
-pub use labels::{label_parameters, parameter_labels};
+pub use labels::{labels_of_parameters, parameters_of_labels};
 pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};

@@ -5,7 +5,7 @@ use dynforge_robot::Model;
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::labels::label_parameters;
+use crate::labels::parameters_of_labels;
 use crate::normal::NormalEquations;
 use crate::solve::pseudo_solve;
 
@@ -64,7 +64,7 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
     // Work in prior-standardised coordinates z = (y - mean) / std: the prior term is |z|^2 and H >= I.
     let labels =
         |z: &DVector<f64>| -> [f64; NUM_LABELS] { std::array::from_fn(|k| prior.mean[k] + prior.std[k] * z[k]) };
-    let params = |z: &DVector<f64>| DVector::from_vec(label_parameters(template, &labels(z)));
+    let params = |z: &DVector<f64>| DVector::from_vec(parameters_of_labels(template, &labels(z)));
     let objective = |pi: &DVector<f64>, z: &DVector<f64>| {
         w * (pi.dot(&(&a * pi)) - 2.0 * b.dot(pi) + c).max(0.0) + z.norm_squared()
     };

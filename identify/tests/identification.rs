@@ -1,11 +1,11 @@
 //! Identification on motions with exactly known torques (inverse dynamics of analytic joint trajectories).
 
-use dynforge_identify::{NormalEquations, Prior, label_parameters, least_squares, refine};
+use dynforge_identify::{NormalEquations, Prior, least_squares, parameters_of_labels, refine};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::JointTrajectory;
 use dynforge_robot::Model;
 use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_robot::parameters::{dynamic_parameters, labels};
+use dynforge_robot::parameters::{dynamic_parameters, labels_of};
 use dynforge_testkit::sinusoid_recording;
 
 const DT: f64 = 1e-3;
@@ -40,8 +40,8 @@ fn least_squares_predicts_the_torques_of_another_motion() {
 #[test]
 fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
     let truth = robot(1);
-    let wrong = labels(&robot(2)).unwrap();
-    let true_labels = labels(&truth).unwrap();
+    let wrong = labels_of(&robot(2)).unwrap();
+    let true_labels = labels_of(&truth).unwrap();
     let std: [f64; NUM_LABELS] = std::array::from_fn(|k| (true_labels[k] - wrong[k]).abs() * 2.0 + 1e-3);
     let prior = Prior::new(wrong, &std).unwrap();
     let fit = normal_equations(&truth, 0, 4000);
@@ -50,8 +50,8 @@ fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
     let refined = refine(&fit, &truth, &prior, ls.sigma).unwrap();
     // The prior's torques are far off; the refined labels predict another motion to within the noise floor
     // (NOISE_FLOOR = 1e-3 of the torque RMS) that the refinement assumes.
-    let before = held_out.mean_nrmse(&label_parameters(&truth, &wrong));
-    let after = held_out.mean_nrmse(&label_parameters(&truth, &refined.labels));
+    let before = held_out.mean_nrmse(&parameters_of_labels(&truth, &wrong));
+    let after = held_out.mean_nrmse(&parameters_of_labels(&truth, &refined.labels));
     assert!(before > 1e-2, "the prior should be wrong: {before}");
     assert!(after < 1e-3, "refined NRMSE {after:.3e} (prior {before:.3e}), {} iterations", refined.iterations);
     // Friction columns (sign(qd), qd of one joint) are independent of everything else: the data determine them.
@@ -75,7 +75,7 @@ fn refining_a_wrong_prior_fits_the_torques_and_recovers_friction() {
 #[test]
 fn the_truth_as_prior_is_a_fixed_point() {
     let truth = robot(3);
-    let y = labels(&truth).unwrap();
+    let y = labels_of(&truth).unwrap();
     let prior = Prior::new(y, &std::array::from_fn(|k| 0.1 * y[k].abs().max(1e-3))).unwrap();
     let fit = normal_equations(&truth, 0, 2000);
     let refined = refine(&fit, &truth, &prior, 0.0).unwrap();
@@ -101,7 +101,7 @@ fn no_motion_and_bad_priors_are_errors() {
     assert!(least_squares(&empty).is_err());
     let moving_ne = NormalEquations::of(&truth, &moving).unwrap();
     assert!(least_squares(&moving_ne).is_ok());
-    let y = labels(&truth).unwrap();
+    let y = labels_of(&truth).unwrap();
     let mut std = [1.0; NUM_LABELS];
     std[7] = 0.0;
     let err = Prior::new(y, &std).unwrap_err().to_string();
@@ -130,7 +130,7 @@ fn calibrating_a_frictionless_description_finds_the_friction() {
     let ne = NormalEquations::of(&cad, &sinusoid_recording(&truth, 0, DT, 4000)).unwrap();
     let c = calibrate(&cad, &ne, 0.5).unwrap();
     assert!(c.nrmse_before > 1e-2 && c.nrmse_after < 1e-3, "{} -> {}", c.nrmse_before, c.nrmse_after);
-    let y = labels(&truth).unwrap();
+    let y = labels_of(&truth).unwrap();
     for (k, l) in LABELS.iter().enumerate() {
         if matches!(l.kind, LabelKind::Coulomb | LabelKind::Viscous) {
             // Exactly known torques and independent friction columns: identified to far below 1 % of the floor.
@@ -157,7 +157,7 @@ fn the_generated_arms_have_48_identifiable_combinations() {
 #[test]
 fn a_calibration_that_predicts_worse_than_the_urdf_says_so() {
     let model = robot(3);
-    let y = labels(&model).unwrap();
+    let y = labels_of(&model).unwrap();
     let calibration = |after: f64| dynforge_identify::Calibration {
         before: y,
         labels: y,

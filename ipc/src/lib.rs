@@ -18,23 +18,23 @@
 //! // spawn the worker process of slot 0 (it calls Worker::new(&run, 0)), then:
 //! coord.attach_worker(0)?;
 //! while !coord.worker_ready(0) { std::thread::sleep(Duration::from_millis(5)); }
-//! coord.send(0, &JobRequest { job_id: 1, seed: 1, robot: 7, trajectory: 3 })?;
+//! coord.send(0, &JobRequest { job_id: 1, job: Job { seed: 1, robot: 7, trajectory: 3 } })?;
 //! for (slot, report) in coord.wait(Duration::from_millis(100))? { println!("{slot}: {report:?}"); }
 //! # Ok(()) }
 //! ```
 
 mod coordinator;
 mod error;
+mod monitor;
 mod run;
 mod services;
-mod status;
 mod types;
 mod worker;
 
 pub use coordinator::{Coordinator, REPOKE_INTERVAL};
-pub use dynforge_proto::job::{JobReport, JobRequest};
+pub use dynforge_proto::job::{Job, JobReport, JobRequest};
 pub use error::IpcError;
+pub use monitor::StatusReader;
 pub use run::{RunId, cleanup_stale};
-pub use status::StatusReader;
 pub use types::{FIXED_STR_CAPACITY, FixedStr, StatusMsg};
 pub use worker::{COORDINATOR_CHECK_INTERVAL, SLOT_WAIT, Worker};

@@ -2,7 +2,7 @@
 //! (`dynforge_proto::job`) and the status record. All are `#[repr(C)]`, `Copy` and carry an explicit type name, so
 //! the coordinator and the worker binaries agree on them even when they are built separately.
 
-use dynforge_proto::job::{JobReport, JobRequest};
+use dynforge_proto::job::{Job, JobReport, JobRequest};
 
 use iceoryx2::prelude::ZeroCopySend;
 
@@ -83,13 +83,14 @@ pub(crate) struct WireRequest {
 
 impl From<&JobRequest> for WireRequest {
     fn from(j: &JobRequest) -> Self {
-        WireRequest { job_id: j.job_id, seed: j.seed, robot: j.robot, trajectory: j.trajectory }
+        let Job { seed, robot, trajectory } = j.job;
+        WireRequest { job_id: j.job_id, seed, robot, trajectory }
     }
 }
 
 impl From<&WireRequest> for JobRequest {
     fn from(j: &WireRequest) -> Self {
-        JobRequest { job_id: j.job_id, seed: j.seed, robot: j.robot, trajectory: j.trajectory }
+        JobRequest { job_id: j.job_id, job: Job { seed: j.seed, robot: j.robot, trajectory: j.trajectory } }
     }
 }
 
@@ -206,7 +207,7 @@ mod tests {
                 _ => assert_eq!(back, r),
             }
         }
-        let j = JobRequest { job_id: 1, seed: 2, robot: 3, trajectory: 4 };
+        let j = JobRequest { job_id: 1, job: Job { seed: 2, robot: 3, trajectory: 4 } };
         assert_eq!(JobRequest::from(&WireRequest::from(&j)), j);
     }
 }

@@ -8,10 +8,10 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{TestRun, Workers, process_cpu, start, thread_cpu, wait_ready};
-use dynforge_ipc::{Coordinator, IpcError, JobReport, JobRequest, StatusMsg, StatusReader};
+use dynforge_ipc::{Coordinator, IpcError, Job, JobReport, JobRequest, StatusMsg, StatusReader};
 
 fn job(job_id: u64, seed: u64, robot: u64, trajectory: u32) -> JobRequest {
-    JobRequest { job_id, seed, robot, trajectory }
+    JobRequest { job_id, job: Job { seed, robot, trajectory } }
 }
 
 /// Waits for the final report of the job in flight on slot `k` (other slots' reports are returned in `others`).
@@ -45,15 +45,15 @@ fn finals_of(coord: &mut Coordinator, slots: &[usize]) -> HashMap<usize, JobRepo
 }
 
 fn expected(j: &JobRequest) -> JobReport {
-    if j.robot == 888 {
+    if j.job.robot == 888 {
         JobReport::Failed { job_id: j.job_id, message: "the worker dropped the job without a final report".into() }
-    } else if j.robot == 777 {
+    } else if j.job.robot == 777 {
         JobReport::Discarded { job_id: j.job_id, reason: "collision".into() }
     } else {
         JobReport::Done {
             job_id: j.job_id,
-            samples: j.robot * 100 + u64::from(j.trajectory),
-            content_hash: j.seed ^ j.job_id,
+            samples: j.job.robot * 100 + u64::from(j.job.trajectory),
+            content_hash: j.job.seed ^ j.job_id,
         }
     }
 }

@@ -1,15 +1,29 @@
-//! The job messages between the coordinator and its workers: what a job is, and how a worker answers it. The
-//! transport (`dynforge-ipc`) carries them in fixed-size wire forms of its own.
+//! What a job is, and the messages between the coordinator and its workers: a request for a job, and how a worker
+//! answers it. The transport (`dynforge-ipc`) carries them in fixed-size wire forms of its own.
 
-/// Simulate trajectory `trajectory` of robot `robot` of the dataset of seed `seed`. `job_id` is the coordinator's
-/// identifier, echoed in every [`JobReport`]. Everything else a job needs (generator and simulation settings) is in
-/// the run directory's manifest, which the worker reads once.
-#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
-pub struct JobRequest {
-    pub job_id: u64,
+/// One unit of work: trajectory `trajectory` of robot `robot` of the dataset of seed `seed`. Everything else a job
+/// needs (generator and simulation settings) is in the run directory's manifest.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Job {
     pub seed: u64,
     pub robot: u64,
     pub trajectory: u32,
+}
+
+impl Job {
+    /// The shard file name of this job when simulated by `engine`: derived from the job alone, so re-running a job
+    /// rewrites the same file.
+    pub fn shard_name(&self, engine: &str) -> String {
+        crate::shard::file_name(self.robot, self.trajectory, engine)
+    }
+}
+
+/// Run `job`. `job_id` is the coordinator's identifier, echoed in every [`JobReport`]; the worker reads the run's
+/// manifest once.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct JobRequest {
+    pub job_id: u64,
+    pub job: Job,
 }
 
 /// What a worker answers to one [`JobRequest`]: any number of `Progress`, then exactly one final report (`Done`,

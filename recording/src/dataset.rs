@@ -5,8 +5,9 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::manifest::Manifest;
 use dynforge_robot::Model;
-use dynforge_robot::generator::GeneratorConfig;
 
 use crate::read::{ReadError, read};
 
@@ -56,22 +57,7 @@ impl ShardFollower {
 /// What a run directory's manifest says about the robots: the generator configuration and the dataset seed.
 /// `None` for a folder of shards without a manifest (not a `generate` directory).
 pub fn generator(dir: &Path) -> Result<Option<(GeneratorConfig, u64)>, ReadError> {
-    #[derive(serde::Deserialize)]
-    struct Robots {
-        seed: u64,
-        generator: GeneratorConfig,
-    }
-    let path = dir.join(dynforge_proto::run_dir::MANIFEST);
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(ReadError::Content { file: path.display().to_string(), problem: e.to_string() }),
-    };
-    let m: Robots = toml::from_str(&text).map_err(|e| ReadError::Content {
-        file: path.display().to_string(),
-        problem: format!("not a run manifest with a [generator] table: {e}"),
-    })?;
-    Ok(Some((m.generator, m.seed)))
+    Ok(Manifest::load(dir)?.map(|m| (m.generator, m.seed)))
 }
 
 /// The robot of a dataset directory: that of its first readable shard, else (a directory whose shards were all

@@ -19,7 +19,7 @@ pub struct Info {
     /// Joint names of the first message.
     pub joints: Vec<String>,
     /// The robot's name and moving joints, from `/robot_description`; or why it could not be read.
-    pub robot: Option<Result<(String, usize), String>>,
+    pub robot: Option<Result<(String, usize), dynforge_robot::model::ModelProblem>>,
     /// Metadata records: name -> (key, value), in file order of keys.
     pub metadata: Vec<(String, Vec<(String, String)>)>,
 }
@@ -35,7 +35,7 @@ impl Info {
         let robot = bag.robot_description.as_ref().map(|text| {
             dynforge_robot::urdf::parse(text, "/robot_description")
                 .map(|m| (m.name().to_string(), m.dof()))
-                .map_err(|e| e.problem.to_string())
+                .map_err(|e| e.problem)
         });
         Ok(Info {
             file: file.display().to_string(),

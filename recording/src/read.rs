@@ -18,6 +18,8 @@ pub enum ReadError {
     Shard(#[from] dynforge_shard::ShardError),
     #[error(transparent)]
     Samples(#[from] SamplesError),
+    #[error(transparent)]
+    Manifest(#[from] dynforge_proto::manifest::ManifestError),
     #[error("{file}: {problem}")]
     Content { file: String, problem: String },
 }

@@ -7,7 +7,7 @@ use crate::model::{Friction, Inertial, Model, ModelError, ModelProblem};
 use crate::spatial::Inertia;
 
 /// The paper's 38 labels (order of [`dynforge_proto::LABELS`]). Needs a 6-joint model.
-pub fn labels(model: &Model) -> Result<[f64; NUM_LABELS], ModelError> {
+pub fn labels_of(model: &Model) -> Result<[f64; NUM_LABELS], ModelError> {
     if model.dof() != 6 {
         return Err(ModelError {
             source_name: format!("model '{}'", model.name()),
@@ -86,8 +86,8 @@ pub const TRIANGLE_MARGIN: f64 = 1e-6;
 /// cover is kept from `model`: the COM's x and y, products of inertia, and link 1's mass, COM and Ixx, Iyy (which
 /// never enter its dynamics; they grow if link 1's Izz needs it). Values outside physics are projected back (friction >= 0, mass and moments
 /// positive, each moment at most the sum of the other two); every projection is described in the returned list.
-pub fn with_labels(model: &Model, y: &[f64; NUM_LABELS]) -> Result<(Model, Vec<String>), ModelError> {
-    labels(model)?; // the 6-joint check, with its error
+pub fn model_with_labels(model: &Model, y: &[f64; NUM_LABELS]) -> Result<(Model, Vec<String>), ModelError> {
+    labels_of(model)?; // the 6-joint check, with its error
     let mut notes = Vec::new();
     let mut floor = |name: &str, v: f64, min: f64, unit: &str| {
         if v < min || !v.is_finite() {

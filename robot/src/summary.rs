@@ -59,7 +59,7 @@ pub fn describe(model: &Model) -> String {
             ic[(1, 2)]
         );
     }
-    if let Ok(y) = parameters::labels(model) {
+    if let Ok(y) = parameters::labels_of(model) {
         let _ = writeln!(s, "\nlabels (the paper's 38 targets):");
         for (l, v) in LABELS.iter().zip(y) {
             let _ = writeln!(s, "  {:<12} {:>12.6} {}", l.name, v, l.kind.unit());

@@ -3,7 +3,7 @@
 use dynforge_proto::{LABELS, LabelKind};
 use dynforge_robot::generator::{GeneratorConfig, SectionKind, generate};
 use dynforge_robot::model::check_physical;
-use dynforge_robot::parameters::labels;
+use dynforge_robot::parameters::labels_of;
 use std::collections::HashSet;
 
 #[test]
@@ -48,7 +48,7 @@ fn ten_thousand_robots_are_physical_and_within_the_configured_ranges() {
             check_physical(r.model.inertia(i)).unwrap_or_else(|e| panic!("robot {id} link {i}: {e}"));
             sections.insert(r.beams[i].section.kind());
         }
-        let y = labels(&r.model).unwrap();
+        let y = labels_of(&r.model).unwrap();
         for (v, l) in y.iter().zip(LABELS.iter()) {
             let ok = match l.kind {
                 LabelKind::Coulomb => (cfg.coulomb[l.index][0]..=cfg.coulomb[l.index][1]).contains(v),
@@ -84,15 +84,15 @@ fn config_from_toml_overrides_defaults_and_rejects_bad_ranges() {
 
 #[test]
 fn labels_carried_onto_another_robot_read_back_exactly_and_reproduce_its_torques() {
-    use dynforge_robot::parameters::with_labels;
+    use dynforge_robot::parameters::model_with_labels;
     use dynforge_robot::{Data, rnea};
     let cfg = GeneratorConfig::default();
     for id in 0..20 {
         let (a, b) = (generate(&cfg, 3, id).unwrap().model, generate(&cfg, 3, id + 100).unwrap().model);
-        let y = labels(&b).unwrap();
-        let (moved, notes) = with_labels(&a, &y).unwrap();
+        let y = labels_of(&b).unwrap();
+        let (moved, notes) = model_with_labels(&a, &y).unwrap();
         assert!(notes.is_empty(), "{notes:?}");
-        let back = labels(&moved).unwrap();
+        let back = labels_of(&moved).unwrap();
         for k in 0..y.len() {
             assert!(
                 (back[k] - y[k]).abs() <= 1e-12 * y[k].abs().max(1e-6),
@@ -117,18 +117,18 @@ fn labels_carried_onto_another_robot_read_back_exactly_and_reproduce_its_torques
 #[test]
 fn unphysical_label_estimates_are_projected_and_each_projection_is_named() {
     use dynforge_proto::LABELS;
-    use dynforge_robot::parameters::{TRIANGLE_MARGIN, with_labels};
+    use dynforge_robot::parameters::{TRIANGLE_MARGIN, model_with_labels};
     let model = generate(&GeneratorConfig::default(), 3, 0).unwrap().model;
-    let mut y = labels(&model).unwrap();
+    let mut y = labels_of(&model).unwrap();
     let at = |name: &str| LABELS.iter().position(|l| l.name == name).unwrap();
     y[at("mass_l3")] = -0.5;
     y[at("viscous_j2")] = -0.1;
     y[at("ixx_l4")] = 10.0; // far above Iyy + Izz
-    let (moved, notes) = with_labels(&model, &y).unwrap();
+    let (moved, notes) = model_with_labels(&model, &y).unwrap();
     assert_eq!(notes.len(), 3, "{notes:?}");
     assert!(notes.iter().any(|n| n.starts_with("mass_l3")) && notes.iter().any(|n| n.starts_with("viscous_j2")));
     assert!(notes.iter().any(|n| n.starts_with("ixx_l4") && n.contains("triangle")));
-    let back = labels(&moved).unwrap();
+    let back = labels_of(&moved).unwrap();
     assert!(back[at("mass_l3")] > 0.0 && back[at("viscous_j2")] == 0.0);
     // Lowered just inside the triangle inequality, not onto it.
     let others = back[at("iyy_l4")] + back[at("izz_l4")];
@@ -137,10 +137,10 @@ fn unphysical_label_estimates_are_projected_and_each_projection_is_named() {
 
 #[test]
 fn projected_inertias_stay_strictly_inside_the_triangle_inequality_through_a_urdf_round_trip() {
-    use dynforge_robot::parameters::{TRIANGLE_MARGIN, with_labels};
+    use dynforge_robot::parameters::{TRIANGLE_MARGIN, model_with_labels};
     use dynforge_robot::rng::Rng;
     let model = generate(&GeneratorConfig::default(), 3, 1).unwrap().model;
-    let base = labels(&model).unwrap();
+    let base = labels_of(&model).unwrap();
     let mut rng = Rng::stream(9, &[]);
     for trial in 0..500 {
         // Poor estimates: every label off by a factor 10^U(-1, 1), some negative; some links with a moment on the
@@ -151,7 +151,7 @@ fn projected_inertias_stay_strictly_inside_the_triangle_inequality_through_a_urd
             y[23] = y[24].abs() + y[25].abs();
             y[27] = 1e-12;
         }
-        let (moved, _) = with_labels(&model, &y).unwrap();
+        let (moved, _) = model_with_labels(&model, &y).unwrap();
         let text = dynforge_robot::urdf::to_string(&moved, &Default::default());
         let back = dynforge_robot::urdf::parse(&text, "projected.urdf").unwrap();
         for link in 0..6 {

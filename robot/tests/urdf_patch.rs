@@ -5,7 +5,7 @@ mod common;
 use common::robot;
 use dynforge_proto::NUM_LABELS;
 use dynforge_robot::model::Model;
-use dynforge_robot::parameters::{dynamic_parameters, labels, with_labels};
+use dynforge_robot::parameters::{dynamic_parameters, labels_of, model_with_labels};
 use dynforge_robot::urdf;
 
 /// A generated robot's URDF as a user's file looks: a material, comments, a joint without `<dynamics>`, a tool
@@ -91,9 +91,9 @@ fn assert_same_parameters(a: &Model, b: &Model) {
 }
 
 fn target(doc_model: &Model, change: impl Fn(&str, f64) -> f64) -> Model {
-    let y0 = labels(doc_model).unwrap();
+    let y0 = labels_of(doc_model).unwrap();
     let y: [f64; NUM_LABELS] = std::array::from_fn(|k| change(dynforge_proto::LABELS[k].name, y0[k]));
-    let (m, projections) = with_labels(doc_model, &y).unwrap();
+    let (m, projections) = model_with_labels(doc_model, &y).unwrap();
     assert!(projections.is_empty(), "{projections:?}");
     m
 }

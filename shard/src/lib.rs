@@ -143,7 +143,7 @@ pub fn read(path: &Path) -> Result<Bag, ShardError> {
 /// leading magic up to that record) when there is one. The reader checks each chunk's CRC but not this one, and
 /// the records outside chunks (our labels and job, the robot description) are covered by nothing else: a label edited
 /// in place (10.78 -> 90.78) was read, and trained on, without a word. Files without the CRC (0) pass.
-fn check_data_section(bytes: &[u8]) -> Result<(), String> {
+fn check_data_section(bytes: &[u8]) -> Result<(), CrcMismatch> {
     const MAGIC: usize = 8;
     const FOOTER: usize = 1 + 8 + 8 + 8 + 4;
     const DATA_END: usize = 1 + 8 + 4;
@@ -162,19 +162,27 @@ fn check_data_section(bytes: &[u8]) -> Result<(), String> {
     let recorded = u32::from_le_bytes(bytes[data_end + 9..data_end + 13].try_into().expect("4 bytes"));
     let actual = crc32fast::hash(&bytes[..data_end]);
     if recorded != 0 && recorded != actual {
-        return Err(format!(
-            "the data section's CRC is {actual:08x}, the file records {recorded:08x}: it was changed or damaged \
-             after it was written"
-        ));
+        return Err(CrcMismatch { recorded, actual });
     }
     Ok(())
+}
+
+/// A file whose data section does not have the CRC it records.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "the data section's CRC is {actual:08x}, the file records {recorded:08x}: it was changed or damaged after it \
+     was written"
+)]
+struct CrcMismatch {
+    recorded: u32,
+    actual: u32,
 }
 
 /// Like [`read`], from memory; `path` only labels errors.
 pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
     let me = mcap_err(path);
     let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
-    check_data_section(bytes).map_err(content)?;
+    check_data_section(bytes).map_err(|e| content(e.to_string()))?;
     let mut bag = Bag::default();
     let options = mcap::read::Options::ValidateChunkCrcs.into();
     for message in mcap::MessageStream::new_with_options(bytes, options).map_err(&me)? {

@@ -18,9 +18,10 @@ use burn::tensor::Device;
 use dynforge_proto::{LABELS, NUM_LABELS};
 use serde::{Deserialize, Serialize};
 
-use crate::data::features::JacobianFeatures;
-use crate::data::normalize::Standardizer;
-use crate::data::window::WindowSpec;
+use dynforge_dataset::examples::ExampleRecord;
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::normalize::Standardizer;
+use dynforge_dataset::window::WindowSpec;
 use dynforge_identify::ParameterPrior;
 
 use crate::model::{Network, NetworkConfig};
@@ -85,18 +86,6 @@ pub struct Checkpoint {
     /// Epoch the weights come from, and its validation loss (none before the first epoch ends).
     pub epoch: usize,
     pub validation_loss: Option<f64>,
-}
-
-/// The physics estimator's training examples as stored.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct ExampleRecord {
-    /// Robots drawn from the generator per epoch.
-    pub generated_per_epoch: usize,
-    /// Whether the dataset's training windows, recordings and robots were trained on too.
-    pub real: bool,
-    /// Whether half the generated robots carried torque noise.
-    #[serde(default)]
-    pub noisy: bool,
 }
 
 /// A [`ParameterPrior`] as stored.
@@ -237,7 +226,7 @@ impl Checkpoint {
         let inputs = match &c.model {
             NetworkConfig::Transformer(m) => m.seq_len == c.window[0] && m.inputs == c.columns.len(),
             NetworkConfig::Physics(m) => {
-                c.parameter_prior().is_some_and(|p| crate::data::physics::feature_width(p.rank()) == m.inputs)
+                c.parameter_prior().is_some_and(|p| dynforge_dataset::evidence::feature_width(p.rank()) == m.inputs)
                     && m.inputs == c.columns.len()
             }
         };

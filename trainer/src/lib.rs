@@ -4,11 +4,8 @@
 //! a recording's parameters.
 
 pub mod checkpoint;
-pub mod data;
 pub mod evaluation;
 pub mod inference;
-pub mod metrics;
 pub mod model;
-mod parallel;
 pub mod sweep;
 pub mod training;

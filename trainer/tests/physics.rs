@@ -1,26 +1,30 @@
 //! The physics estimator on generated robots: its map, trained on robots drawn from the generator and paired with
 //! the excitation of a few simulated recordings, names what the torques identify exactly on robots it never saw.
 
+#[path = "../../dataset/tests/common/mod.rs"]
 mod common;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::AtomicBool;
 
+use dynforge_dataset::cache::evidence::PhysicsSet;
+use dynforge_dataset::evidence::{generator_prior, measured_evidence, recording_evidence};
+use dynforge_dataset::examples::ExampleRecord;
+use dynforge_dataset::examples::Examples;
+use dynforge_dataset::examples::generated::{PhysicsExamples, PhysicsSource};
+use dynforge_dataset::metrics::score;
+use dynforge_dataset::split::{Split, split_of};
+use dynforge_dataset::window::WindowSpec;
 use dynforge_identify::{Evidence, PAIRED_NOISE_GAIN};
+use dynforge_proto::job::Job;
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::read;
 use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_robot::parameters::{dynamic_parameters, labels};
-use dynforge_trainer::checkpoint::{Checkpoint, ExampleRecord, PriorRecord};
-use dynforge_trainer::data::physics::{PhysicsSet, generator_prior, measured_evidence, recording_evidence};
-use dynforge_trainer::data::split::{Split, split_of};
-use dynforge_trainer::data::window::WindowSpec;
+use dynforge_robot::parameters::{dynamic_parameters, labels_of};
+use dynforge_trainer::checkpoint::{Checkpoint, PriorRecord};
 use dynforge_trainer::inference::Predictor;
-use dynforge_trainer::metrics::score;
 use dynforge_trainer::model::{NetworkConfig, PhysicsConfig};
-use dynforge_trainer::training::physics::{PhysicsExamples, PhysicsSource};
-use dynforge_trainer::training::{Examples, TrainConfig, train};
-use dynforge_worker::job::Job;
+use dynforge_trainer::training::{Run, TrainConfig, train};
 
 /// The labels the torques of a rich motion fix exactly (the generator's structure leaves four directions of its 30
 /// unseen, which touch link 1's mass and COM, the split of mass between links 4 and 5, and first moments of links
@@ -62,7 +66,14 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     let out = tempfile::tempdir().unwrap();
     let train_cfg =
         TrainConfig { epochs: 6, batch: 256, lr: 2e-3, micro_batches: 2, patience: 10, ..TrainConfig::default() };
-    train(&mut examples, None, ck, &train_cfg, out.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
+    train(
+        &mut examples,
+        None,
+        ck,
+        &Run { dir: out.path(), config: &train_cfg, resume: false, stop: &AtomicBool::new(false) },
+        &mut (),
+    )
+    .unwrap();
 
     // Fresh generated robots, never simulated nor trained on, seen through the excitation of a training robot's six
     // recordings (as training pairs generated robots with the training robots' excitations).
@@ -78,12 +89,12 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
         let robot = generate(&cfg, 777, id).unwrap().model;
         let z = prior.coordinates(&dynamic_parameters(&robot));
         evidence.push(Evidence::noiseless(prior.rank(), &excitation.h, &z));
-        truth.push(labels(&robot).unwrap());
+        truth.push(labels_of(&robot).unwrap());
     }
     let predicted = predictor.predict_evidence(&evidence).unwrap();
     let plug_in: Vec<[f64; NUM_LABELS]> = evidence
         .iter()
-        .map(|e| dynforge_identify::parameter_labels(&prior.parameters(&e.posterior().unwrap().mean)))
+        .map(|e| dynforge_identify::labels_of_parameters(&prior.parameters(&e.posterior().unwrap().mean)))
         .collect();
     let p = score(&plug_in, &truth, &predictor.checkpoint.standardizer().label_std);
     let s = score(&predicted, &truth, &predictor.checkpoint.standardizer().label_std);

@@ -2,16 +2,17 @@
 //! irregular timestamps, shuffled joint order and an extra joint, gives the same windows as our regular shard of
 //! the same motion. Needs the reference venv (see `dynforge_testkit::reference_python`).
 
+#[path = "../../dataset/tests/common/mod.rs"]
 mod common;
 
 use common::write_shard;
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::window::WindowSpec;
+use dynforge_dataset::windows::windows;
+use dynforge_proto::job::Job;
 use dynforge_proto::shard::JOINT_STATE_DEFINITION;
 use dynforge_recording::read;
 use dynforge_robot::rng::Rng;
-use dynforge_trainer::data::dataset::windows;
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::Job;
 use serde_json::json;
 
 #[test]

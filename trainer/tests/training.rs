@@ -1,19 +1,21 @@
 //! The estimator's training loop and checkpoints on small synthetic corpora: it can fit, it saves and loads
 //! exactly, and an interrupted run resumes to the very same result.
 
+#[path = "../../dataset/tests/common/mod.rs"]
 mod common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::tensor::Device;
+use dynforge_dataset::cache::windows::CachedWindows;
+use dynforge_dataset::examples::corpus::Corpus;
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::normalize::Standardizer;
+use dynforge_dataset::window::WindowSpec;
 use dynforge_robot::rng::Rng;
 use dynforge_trainer::checkpoint::Checkpoint;
-use dynforge_trainer::data::cache::CachedWindows;
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::normalize::Standardizer;
-use dynforge_trainer::data::window::WindowSpec;
 use dynforge_trainer::model::{NetworkConfig, TransformerConfig};
-use dynforge_trainer::training::{Corpus, EpochMetrics, TrainConfig, TrainObserver, predict, train};
+use dynforge_trainer::training::{EpochMetrics, Run, TrainConfig, TrainObserver, predict, train};
 
 const LEN: usize = 8;
 const WIDTH: usize = 5;
@@ -86,7 +88,14 @@ fn a_model_overfits_a_tiny_set_by_orders_of_magnitude() {
         ..TrainConfig::default()
     };
     let ck = checkpoint(&c, small_model());
-    let summary = train(&mut c, None, ck, &cfg, dir.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
+    let summary = train(
+        &mut c,
+        None,
+        ck,
+        &Run { dir: dir.path(), config: &cfg, resume: false, stop: &AtomicBool::new(false) },
+        &mut (),
+    )
+    .unwrap();
     let first = summary.history[0].train_loss;
     let best = summary.history.iter().map(|m| m.validation_loss).fold(f64::INFINITY, f64::min);
     // Standardised targets start near unit loss; fitting 16 windows must drive it down by >= 2 orders.
@@ -147,15 +156,34 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     let whole = tempfile::tempdir().unwrap();
     let mut c = corpus(12, 3);
     let ck = checkpoint(&c, model.clone());
-    let a = train(&mut c, None, ck.clone(), &cfg, whole.path(), false, &mut (), &AtomicBool::new(false)).unwrap();
+    let a = train(
+        &mut c,
+        None,
+        ck.clone(),
+        &Run { dir: whole.path(), config: &cfg, resume: false, stop: &AtomicBool::new(false) },
+        &mut (),
+    )
+    .unwrap();
     // The same run, stopped mid-epoch 1 (step 5 of 3 x 3), then resumed.
     let parts = tempfile::tempdir().unwrap();
     let flag = AtomicBool::new(false);
-    let stopped =
-        train(&mut c, None, ck.clone(), &cfg, parts.path(), false, &mut StopAt { at: 5, seen: 0, flag: &flag }, &flag)
-            .unwrap();
+    let stopped = train(
+        &mut c,
+        None,
+        ck.clone(),
+        &Run { dir: parts.path(), config: &cfg, resume: false, stop: &flag },
+        &mut StopAt { at: 5, seen: 0, flag: &flag },
+    )
+    .unwrap();
     assert!(stopped.interrupted && stopped.history.len() == 1);
-    let b = train(&mut c, None, ck, &cfg, parts.path(), true, &mut (), &AtomicBool::new(false)).unwrap();
+    let b = train(
+        &mut c,
+        None,
+        ck,
+        &Run { dir: parts.path(), config: &cfg, resume: true, stop: &AtomicBool::new(false) },
+        &mut (),
+    )
+    .unwrap();
     assert!(!b.interrupted);
     let losses = |h: &[EpochMetrics]| h.iter().map(|m| (m.train_loss, m.validation_loss)).collect::<Vec<_>>();
     assert_eq!(losses(&a.history), losses(&b.history));
@@ -185,10 +213,18 @@ fn a_resume_names_its_epoch_and_every_changed_setting_and_refuses_those_that_dec
     let mut c = corpus(8, 3);
     let ck = checkpoint(&c, small_model());
     let never = AtomicBool::new(false);
-    train(&mut c, None, ck.clone(), &cfg, dir.path(), false, &mut (), &never).unwrap();
+    train(&mut c, None, ck.clone(), &Run { dir: dir.path(), config: &cfg, resume: false, stop: &never }, &mut ())
+        .unwrap();
     let longer = TrainConfig { epochs: 2, lr: 1e-3, ..cfg.clone() };
     let mut seen = Messages(Vec::new());
-    let r = train(&mut c, None, ck.clone(), &longer, dir.path(), true, &mut seen, &never).unwrap();
+    let r = train(
+        &mut c,
+        None,
+        ck.clone(),
+        &Run { dir: dir.path(), config: &longer, resume: true, stop: &never },
+        &mut seen,
+    )
+    .unwrap();
     assert_eq!(r.history.len(), 2);
     let text = seen.0.join("\n");
     assert!(
@@ -197,7 +233,15 @@ fn a_resume_names_its_epoch_and_every_changed_setting_and_refuses_those_that_dec
     );
     assert!(!text.contains("patience"), "unchanged settings are not listed: {text}");
     for other in [TrainConfig { micro_batches: 2, ..longer.clone() }, TrainConfig { batch: 3, ..longer.clone() }] {
-        let e = train(&mut c, None, ck.clone(), &other, dir.path(), true, &mut (), &never).map(|_| ()).unwrap_err();
+        let e = train(
+            &mut c,
+            None,
+            ck.clone(),
+            &Run { dir: dir.path(), config: &other, resume: true, stop: &never },
+            &mut (),
+        )
+        .map(|_| ())
+        .unwrap_err();
         assert!(e.to_string().contains("micro-batches; resume it with the same"), "{e}");
     }
 }
@@ -215,8 +259,8 @@ impl TrainObserver for Batches {
 
 #[test]
 fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_ones() {
-    use dynforge_trainer::data::split::{Split, split_of};
-    use dynforge_worker::job::Job;
+    use dynforge_dataset::split::{Split, split_of};
+    use dynforge_proto::job::Job;
     let dir = tempfile::tempdir().unwrap();
     // Four robots, two trajectories each; the split seed puts robots on both sides.
     let jobs: Vec<Job> =
@@ -265,9 +309,16 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     let cfg = TrainConfig { epochs: 2, batch: 4, ..TrainConfig::default() };
     let out = tempfile::tempdir().unwrap();
     let mut batches = Batches(vec![]);
-    train(&mut c, Some(&mut grow), ck, &cfg, out.path(), false, &mut batches, &AtomicBool::new(false)).unwrap();
+    train(
+        &mut c,
+        Some(&mut grow),
+        ck,
+        &Run { dir: out.path(), config: &cfg, resume: false, stop: &AtomicBool::new(false) },
+        &mut batches,
+    )
+    .unwrap();
     assert_eq!(skipped.len(), 1, "{skipped:?}");
-    assert!(skipped[0].contains("r999999-t00-native.mcap"), "{skipped:?}");
+    assert!(skipped[0].to_string().contains("r999999-t00-native.mcap"), "{skipped:?}");
     // Every new window went to its robot's side, and epoch 1 trained on the grown training split.
     for (i, &r) in c.windows.robots.iter().enumerate() {
         let side = if c.train.contains(&i) { Split::Train } else { Split::Validation };

@@ -18,44 +18,8 @@
 //! The integral term is kept as a torque, so gain changes are bumpless. Tuning (bench/simulation.sh, 100 robots):
 //! see the README.
 
+pub use dynforge_proto::sim::PidGains;
 use nalgebra::Matrix6;
-use serde::{Deserialize, Serialize};
-
-/// Controller tuning.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct PidGains {
-    /// Closed-loop natural frequency per joint [rad/s].
-    pub omega: [f64; 6],
-    /// Smallest inertia the gains are scheduled on per joint [kg m^2]: light joints get the stiffness needed to
-    /// push through Coulomb friction, up to the discrete loop's stability bound (`2 zeta omega dt I_floor / I` < 1.5
-    /// for the lightest generated joint).
-    pub inertia_floor: [f64; 6],
-    /// Damping ratio.
-    pub zeta: f64,
-    /// Integral corner as a fraction of `omega`.
-    pub integral_ratio: f64,
-    /// Gravity-aware gain `K_G` as a fraction of `Kp`, per metre of end-effector height per radian.
-    pub kg_fraction: f64,
-    /// Largest share of the effort limit the integral term may hold.
-    pub windup_fraction: f64,
-    /// Control periods between gain schedules (inertia, Jacobian, stability scale).
-    pub schedule_every: usize,
-}
-
-impl Default for PidGains {
-    fn default() -> Self {
-        PidGains {
-            omega: [25.0; 6],
-            inertia_floor: [0.3, 0.8, 0.3, 0.06, 0.02, 0.02],
-            zeta: 1.0,
-            integral_ratio: 1.0,
-            kg_fraction: 0.5,
-            windup_fraction: 0.7,
-            schedule_every: 5,
-        }
-    }
-}
 
 /// Gains of one joint loop at the current pose (`kp` includes the gravity-aware term).
 #[derive(Debug, Clone, Copy, Default)]

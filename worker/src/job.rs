@@ -5,21 +5,14 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::LABELS;
+pub use dynforge_proto::job::Job;
 use dynforge_proto::shard::{JointState, META_JOB, META_LABELS, META_TRAJECTORY, SHARD_VERSION};
 use dynforge_robot::generator::{GENERATOR_VERSION, GeneratedRobot, GeneratorConfig, generate};
-use dynforge_robot::parameters::labels;
+use dynforge_robot::parameters::labels_of;
 use dynforge_shard::{Metadata, ShardContent, ShardError};
 
 use crate::simulate::{Discard, Recording, SimConfig, simulate};
-use crate::trajectory::{Config6, Move, waypoints};
-
-/// One unit of work: trajectory `trajectory` of robot `robot` of dataset `seed`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct Job {
-    pub seed: u64,
-    pub robot: u64,
-    pub trajectory: u32,
-}
+use crate::trajectory::{Config6, Move, PlanError, waypoints};
 
 /// What a job produced.
 #[derive(Debug, Clone, PartialEq)]
@@ -43,17 +36,12 @@ pub enum JobError {
     Shard(#[from] ShardError),
 }
 
-/// The shard file name of a job: derived from the job alone, so re-running a job rewrites the same file.
-pub fn shard_name(job: &Job, engine: &str) -> String {
-    dynforge_proto::shard::file_name(job.robot, job.trajectory, engine)
-}
-
 /// A generated robot and its waypoint tour (or why none was found), for (seed, robot).
 struct Planned {
     seed: u64,
     id: u64,
     robot: GeneratedRobot,
-    tour: Result<Vec<Config6>, String>,
+    tour: Result<Vec<Config6>, PlanError>,
 }
 
 /// Runs jobs, keeping the last robot and its tour: consecutive jobs of one robot plan once.
@@ -76,7 +64,7 @@ impl Runner {
         let hit = matches!(&self.cache, Some(p) if p.seed == job.seed && p.id == job.robot);
         if !hit {
             let robot = generate(&self.generator, job.seed, job.robot)?;
-            let tour = waypoints(&robot, job.seed, &self.sim.trajectory).map_err(|e| e.to_string());
+            let tour = waypoints(&robot, job.seed, &self.sim.trajectory);
             self.cache = Some(Planned { seed: job.seed, id: job.robot, robot, tour });
         }
         Ok(self.cache.as_ref().expect("filled above"))
@@ -101,14 +89,14 @@ impl Runner {
     pub fn run(&mut self, job: &Job, out_dir: &Path) -> Result<Outcome, JobError> {
         let Simulated { robot, result } = match self.simulate(job) {
             Ok(s) => s,
-            Err(JobError::Model(e)) => return Ok(Outcome::Discarded(Discard::Rejected(e.to_string()))),
+            Err(JobError::Model(e)) => return Ok(Outcome::Discarded(Discard::Rejected(e))),
             Err(e) => return Err(e),
         };
         let (mv, rec) = match result {
             Ok(done) => done,
             Err(d) => return Ok(Outcome::Discarded(d)),
         };
-        let path = out_dir.join(shard_name(job, self.sim.engine.name()));
+        let path = out_dir.join(job.shard_name(self.sim.engine.name()));
         let messages = joint_states(&robot, &rec);
         let metadata = self.metadata(job, &robot, &mv)?;
         let content_hash = dynforge_shard::write(
@@ -125,7 +113,7 @@ impl Runner {
     }
 
     fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {
-        let y = labels(&robot.model)?;
+        let y = labels_of(&robot.model)?;
         let joined = |q: &Config6| q.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(" ");
         let job_meta = BTreeMap::from([
             ("seed".to_string(), job.seed.to_string()),

@@ -2,34 +2,22 @@
 
 use std::path::Path;
 
-use dynforge_ipc::{IpcError, JobReport, RunId, Worker};
+use dynforge_ipc::{IpcError, JobReport, JobRequest, RunId, Worker};
+use dynforge_proto::manifest::{Manifest, ManifestError};
 use dynforge_proto::run_dir::{MANIFEST, SHARDS};
-use dynforge_robot::generator::GeneratorConfig;
 
-use crate::job::{Job, Outcome, Runner};
-use crate::simulate::SimConfig;
+use crate::job::{Outcome, Runner};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
-    #[error("{path}: {problem} (workers are started by `dynforge generate`)")]
-    Manifest { path: String, problem: String },
+    /// The worker simulates with the manifest's generator and simulation settings (the coordinator checked the rest
+    /// before starting it).
+    #[error("{0} (workers are started by `dynforge generate`)")]
+    Manifest(#[from] ManifestError),
+    #[error("{0}: no run manifest (workers are started by `dynforge generate`)")]
+    NoManifest(String),
     #[error(transparent)]
     Ipc(#[from] IpcError),
-}
-
-/// What a worker takes from the run manifest: the robots' generator and the simulation settings (the coordinator
-/// owns the rest of the manifest and checks it before starting any worker).
-#[derive(serde::Deserialize)]
-struct JobSettings {
-    generator: GeneratorConfig,
-    sim: SimConfig,
-}
-
-fn settings(dir: &Path) -> Result<JobSettings, ServeError> {
-    let path = dir.join(MANIFEST);
-    let fail = |problem: String| ServeError::Manifest { path: path.display().to_string(), problem };
-    let text = std::fs::read_to_string(&path).map_err(|e| fail(e.to_string()))?;
-    toml::from_str(&text).map_err(|e| fail(format!("not a run manifest: {e}")))
 }
 
 /// Fault injection for tests of the coordinator's hung-worker deadline: when set to a number of seconds, every
@@ -39,15 +27,15 @@ pub const STALL_ENV: &str = "DYNFORGE_FAULT_WORKER_STALL";
 /// Serves slot `slot` of the run in `dir`. Returns when the coordinator stops the worker or goes away.
 pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
     let stall = std::env::var(STALL_ENV).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s > 0.0);
-    let settings = settings(dir)?;
+    let manifest =
+        Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.join(MANIFEST).display().to_string()))?;
     let run = RunId::for_dir(dir)?;
     let mut worker = Worker::new(&run, slot)?;
-    let mut runner = Runner::new(settings.generator, settings.sim);
+    let mut runner = Runner::new(manifest.generator, manifest.sim);
     let shards = dir.join(SHARDS);
     let mut served = 0;
     while let Some(request) = worker.next_job()? {
-        let job = Job { seed: request.seed, robot: request.robot, trajectory: request.trajectory };
-        let job_id = request.job_id;
+        let JobRequest { job_id, job } = request;
         if let Some(seconds) = stall {
             std::thread::sleep(std::time::Duration::from_secs_f64(seconds));
         }

@@ -1,48 +1,15 @@
 //! One trajectory of one robot: reference, controller, engine, failure checks, recording.
 
+use dynforge_proto::sim::EngineKind;
+pub use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratedRobot;
 use dynforge_robot::{Data, crba, energy, point_jacobian};
 use nalgebra::{Matrix6, Vector3};
-use serde::{Deserialize, Serialize};
 
 use crate::collision::{CollisionModel, Contact};
-use crate::control::{Pid, PidGains};
-use crate::engine::{Engine, EngineKind, NativeEngine, RAPIER_SUBSTEPS, RapierEngine};
-use crate::trajectory::{Config6, Move, TrajectoryConfig};
-
-/// Everything that shapes a simulation besides the robot and its move.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SimConfig {
-    /// Control and logging period [s] (the paper logs at 1 kHz).
-    pub dt: f64,
-    pub engine: EngineKind,
-    pub gains: PidGains,
-    pub trajectory: TrajectoryConfig,
-    /// Periods between collision checks (exact geometry, no margin; the planned path keeps a clearance).
-    pub collision_every: usize,
-    /// A joint faster than this multiple of its speed limit means the simulation went unstable.
-    pub velocity_blowup: f64,
-    /// Energy may exceed its start value plus the work done by the motors by this much [J] plus 5 % of the scale.
-    pub energy_slack: f64,
-    /// At the end of the hold every joint must be this close to the goal [rad], else the run timed out.
-    pub goal_tolerance: f64,
-}
-
-impl Default for SimConfig {
-    fn default() -> Self {
-        SimConfig {
-            dt: 1e-3,
-            engine: EngineKind::Native,
-            gains: PidGains::default(),
-            trajectory: TrajectoryConfig::default(),
-            collision_every: 10,
-            velocity_blowup: 1.5,
-            energy_slack: 1.0,
-            goal_tolerance: 0.02,
-        }
-    }
-}
+use crate::control::Pid;
+use crate::engine::{Engine, NativeEngine, RAPIER_SUBSTEPS, RapierEngine};
+use crate::trajectory::{Config6, Move, PlanError};
 
 /// Why a run was discarded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -59,12 +26,12 @@ pub enum Discard {
     Collision { contact: Contact, t: f64 },
     #[error("joint {joint} ended {error:.4} rad from the goal (waypoint timeout)")]
     Timeout { joint: usize, error: f64 },
-    #[error("{0}")]
-    Planning(String),
+    #[error(transparent)]
+    Planning(PlanError),
     /// The generator refused the robot of this seed and id (its configuration allows robots no model can be made
     /// of): as deterministic as a collision, so recorded once rather than retried on every resume.
     #[error("the generator rejected the robot: {0}")]
-    Rejected(String),
+    Rejected(dynforge_robot::ModelError),
 }
 
 impl Discard {
@@ -114,6 +81,30 @@ pub fn engine_for<'m>(kind: EngineKind, robot: &'m GeneratedRobot, dt: f64) -> B
     }
 }
 
+/// A state no stable simulation of a controlled arm reaches: not finite, outside the joint limits, or faster than
+/// `cfg.velocity_blowup` times a joint's speed limit.
+fn check_state(
+    model: &dynforge_robot::Model,
+    q: &Config6,
+    qd: &Config6,
+    t: f64,
+    cfg: &SimConfig,
+) -> Result<(), Discard> {
+    if q.iter().chain(qd).any(|v| !v.is_finite()) {
+        return Err(Discard::NonFinite { t });
+    }
+    for j in 0..6 {
+        let lim = &model.joints()[j].limits;
+        if q[j] < lim.lower || q[j] > lim.upper {
+            return Err(Discard::JointLimit { joint: j, t });
+        }
+        if qd[j].abs() > cfg.velocity_blowup * lim.velocity {
+            return Err(Discard::VelocityBlowup { joint: j, speed: qd[j].abs(), t });
+        }
+    }
+    Ok(())
+}
+
 /// Simulates `mv` on `robot`, starting at rest in equilibrium at the move's start.
 pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Recording, Discard> {
     let model = &robot.model;
@@ -142,18 +133,7 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
     for k in 0..steps {
         let t = k as f64 * cfg.dt;
         let (q, qd) = (*engine.q(), *engine.qd());
-        if q.iter().chain(&qd).any(|v| !v.is_finite()) {
-            return Err(Discard::NonFinite { t });
-        }
-        for j in 0..6 {
-            let lim = &model.joints()[j].limits;
-            if q[j] < lim.lower || q[j] > lim.upper {
-                return Err(Discard::JointLimit { joint: j, t });
-            }
-            if qd[j].abs() > cfg.velocity_blowup * lim.velocity {
-                return Err(Discard::VelocityBlowup { joint: j, speed: qd[j].abs(), t });
-            }
-        }
+        check_state(model, &q, &qd, t, cfg)?;
         if k.is_multiple_of(cfg.collision_every) {
             let e = energy(model, &mut data, &q, &qd).total();
             let excess = e - e0 - work;

@@ -11,52 +11,15 @@
 //! `min_move` seconds; then the reference holds the goal for `hold` seconds. With the defaults a trajectory lasts at
 //! least 6 s, enough for a 64 x 64 ms window plus offsets.
 
+pub use dynforge_proto::sim::TrajectoryConfig;
 use dynforge_robot::generator::GeneratedRobot;
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::{Data, Model, forward_kinematics};
-use serde::{Deserialize, Serialize};
 
 use crate::collision::CollisionModel;
 
 /// Joint-space configuration of the 6-DOF arm.
 pub type Config6 = [f64; 6];
-
-/// How waypoints and moves are drawn.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct TrajectoryConfig {
-    /// Waypoints per robot = trajectories per robot.
-    pub waypoints: usize,
-    /// Clearance kept from every collision [m].
-    pub clearance: f64,
-    /// Waypoints stay this far inside the joint limits [rad].
-    pub limit_margin: f64,
-    /// Largest joint-space step between collision checks along a path [rad].
-    pub path_step: f64,
-    /// Peak joint speed of a move as a fraction of the joint's speed limit.
-    pub speed_fraction: f64,
-    /// Shortest move [s].
-    pub min_move: f64,
-    /// Time the goal is held after a move [s].
-    pub hold: f64,
-    /// Candidate draws per waypoint before giving up.
-    pub max_attempts: usize,
-}
-
-impl Default for TrajectoryConfig {
-    fn default() -> Self {
-        TrajectoryConfig {
-            waypoints: 16,
-            clearance: 0.02,
-            limit_margin: 0.15,
-            path_step: 0.02,
-            speed_fraction: 0.5,
-            min_move: 4.0,
-            hold: 2.0,
-            max_attempts: 2000,
-        }
-    }
-}
 
 /// Why no waypoints could be found.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

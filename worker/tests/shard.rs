@@ -6,7 +6,7 @@ use std::path::Path;
 use dynforge_proto::LABELS;
 use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_robot::parameters::labels;
+use dynforge_robot::parameters::labels_of;
 use dynforge_robot::urdf;
 use dynforge_worker::job::{Job, Outcome, Runner};
 use dynforge_worker::simulate::{Discard, SimConfig};
@@ -40,7 +40,7 @@ fn shard_reads_back_every_field() {
         assert_eq!(m.velocity, rec.qd[k]);
         assert_eq!(m.effort, rec.tau[k]);
     }
-    let want = labels(&robot.model).unwrap();
+    let want = labels_of(&robot.model).unwrap();
     let got = &bag.metadata[META_LABELS];
     assert_eq!(got.len(), LABELS.len());
     for (l, v) in LABELS.iter().zip(want) {

@@ -4,8 +4,8 @@
 use std::time::{Duration, Instant};
 
 use dynforge_ipc::{IpcError, JobReport, JobRequest};
+use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::SHARDS;
-use dynforge_worker::job::{Job, shard_name};
 
 use super::{GenerateError, Observer, Run};
 use crate::ledger::{Entry, Status};
@@ -20,12 +20,7 @@ impl Run<'_> {
         for k in 0..self.running.len() {
             if self.running[k].is_none() && self.ipc.worker_ready(k) {
                 let Some(job) = self.pending.pop_front() else { break };
-                let request = JobRequest {
-                    job_id: plan::job_id(&job, self.cfg.trajectories),
-                    seed: job.seed,
-                    robot: job.robot,
-                    trajectory: job.trajectory,
-                };
+                let request = JobRequest { job_id: plan::job_id(&job, self.cfg.trajectories), job };
                 self.ipc.send(k, &request)?;
                 self.running[k] = Some((job, Instant::now()));
             }
@@ -99,7 +94,7 @@ impl Run<'_> {
         if let Status::Failed { message } = &status {
             observer.message(&format!("robot {} trajectory {} failed: {message}", job.robot, job.trajectory));
             // A worker killed as hung may still have finished its shard: a failed job keeps no shard.
-            let shard = self.cfg.dir.join(SHARDS).join(shard_name(&job, self.cfg.sim.engine.name()));
+            let shard = self.cfg.dir.join(SHARDS).join(job.shard_name(self.cfg.sim.engine.name()));
             match std::fs::remove_file(&shard) {
                 Ok(()) => {}
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}

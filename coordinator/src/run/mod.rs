@@ -1,12 +1,12 @@
 //! `generate`: the coordinator. Plans the jobs not yet in the ledger, starts the worker processes, then loops:
 //! [`dispatch`] hands jobs to idle workers and records every final report durably, [`liveness`] replaces dead or
-//! hung workers and re-queues their jobs, [`status`] tells displays and monitors how the run goes. The worker
+//! hung workers and re-queues their jobs, [`progress`] tells displays and monitors how the run goes. The worker
 //! processes themselves are started and stopped by [`processes`].
 
 mod dispatch;
 mod liveness;
 mod processes;
-mod status;
+mod progress;
 
 use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::ffi::OsString;
@@ -14,17 +14,17 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use dynforge_ipc::{Coordinator, IpcError, RunId};
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, LOGS, MANIFEST, SHARDS, is_temporary};
-use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::Job;
-use dynforge_worker::simulate::SimConfig;
+use dynforge_proto::sim::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::lock::{LockError, RunLock};
-use crate::manifest::{Manifest, ManifestError};
 use crate::plan::{self, Partition};
+use dynforge_proto::manifest::{Manifest, ManifestError};
 use processes::Processes;
-pub use status::{Observer, Progress};
+pub use progress::{Observer, Progress};
 
 /// Everything `generate` needs.
 #[derive(Debug, Clone)]
@@ -69,6 +69,11 @@ pub enum GenerateError {
     Spawn { slot: usize, program: String, source: std::io::Error },
     #[error("interrupted: {finished} of {total} jobs are recorded; run the same command again to resume")]
     Interrupted { finished: u64, total: u64 },
+    #[error(
+        "{failed} job(s) failed (reasons in {dir}/{LEDGER} and the worker logs in {dir}/{LOGS}); rerun the same \
+         command to retry them"
+    )]
+    Failed { failed: u64, dir: String },
 }
 
 /// How long a starting run waits for the directory's previous holder to go away: the orphan workers of a killed
@@ -110,6 +115,60 @@ struct Run<'a> {
 
 /// Runs (or resumes) a generation. Returns the final progress.
 pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
+    check_settings(cfg)?;
+    // Nothing in the directory is touched before it is ours.
+    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT)?;
+    let (ledger, finished) = open_run_dir(cfg, observer)?;
+    let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
+    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
+    for status in finished.values() {
+        progress.record(status);
+    }
+    progress.resumed = progress.finished();
+    let pending: VecDeque<Job> =
+        all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
+    if pending.is_empty() {
+        observer.update(&progress);
+        return Ok(progress);
+    }
+    let workers = cfg.workers.min(pending.len());
+    progress.slots.truncate(workers);
+
+    let id = RunId::for_dir(&cfg.dir)?;
+    dynforge_ipc::cleanup_stale(&id)?;
+    let mut ipc = Coordinator::new(&id, workers)?;
+    let mut procs = Processes::new(cfg.worker_command.clone(), cfg.dir.clone(), workers, lock);
+    for k in 0..workers {
+        procs.spawn(k)?;
+        ipc.attach_worker(k)?;
+    }
+    let run = Run {
+        cfg,
+        ledger,
+        pending,
+        running: vec![None; workers],
+        attempts: HashMap::new(),
+        progress,
+        ipc,
+        procs,
+        interrupted: false,
+        started: Instant::now(),
+    };
+    run.drive(observer)
+}
+
+impl Progress {
+    /// An error naming the failed jobs of a finished run in `dir`, if any: the run ended, but a resume has work.
+    pub fn check_failures(&self, dir: &Path) -> Result<(), GenerateError> {
+        match self.failed {
+            0 => Ok(()),
+            failed => Err(GenerateError::Failed { failed, dir: dir.display().to_string() }),
+        }
+    }
+}
+
+/// Settings no run can have: nothing to do, or more trajectories than a tour.
+fn check_settings(cfg: &GenerateConfig) -> Result<(), GenerateError> {
     if cfg.robots == 0 || cfg.trajectories == 0 || cfg.workers == 0 {
         return Err(GenerateError::Settings(format!(
             "--robots {}, --trajectories {} and --workers {} must all be at least 1",
@@ -124,8 +183,15 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
             cfg.trajectories
         )));
     }
-    // Nothing in the directory is touched before it is ours.
-    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT)?;
+    Ok(())
+}
+
+/// Makes the locked directory a run directory of `cfg` (or checks it is one, growing it to more robots), removes
+/// partial files, and opens its ledger: the ledger, and the final status of every job that needs no rerun.
+fn open_run_dir(
+    cfg: &GenerateConfig,
+    observer: &mut dyn Observer,
+) -> Result<(Ledger, BTreeMap<u64, Status>), GenerateError> {
     let dir_err = |source| GenerateError::Dir { dir: cfg.dir.display().to_string(), source };
     std::fs::create_dir_all(cfg.dir.join(SHARDS)).map_err(dir_err)?;
     std::fs::create_dir_all(cfg.dir.join(LOGS)).map_err(dir_err)?;
@@ -159,89 +225,63 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
     if removed > 0 {
         observer.message(&format!("removed {removed} partial shard file(s) left by an interrupted run"));
     }
+    Ok((ledger, finished_jobs(cfg, &entries, &pruned, observer)))
+}
 
-    // A job's latest entry counts. Done and discarded are final (a discard is a property of the robot and its
-    // trajectory); a failure (a killed or hung worker, a full disk, an unwritable directory) says nothing about the
-    // job, so a resume runs it again.
-    let latest = crate::ledger::latest(&entries);
+/// The jobs a resume need not run again, with their final status. A job's latest entry counts. Done and discarded
+/// are final (a discard is a property of the robot and its trajectory); a failure (a killed or hung worker, a full
+/// disk, an unwritable directory) says nothing about the job, so a resume runs it again. A recorded shard that is
+/// gone (deleted, lost with a disk) is made again: the job is deterministic. (A damaged one takes reading every
+/// file: `verify --repair` finds those and records them failed, so they rerun too.) A pruned one is not gone: its
+/// data are in the caches.
+fn finished_jobs(
+    cfg: &GenerateConfig,
+    entries: &[Entry],
+    pruned: &std::collections::BTreeSet<String>,
+    observer: &mut dyn Observer,
+) -> BTreeMap<u64, Status> {
+    let latest = crate::ledger::latest(entries);
     let failed = |e: &Entry| matches!(e.status, Status::Failed { .. });
     let retried = latest.values().filter(|e| failed(e)).count();
-    let mut finished: BTreeMap<u64, &Entry> = latest.into_iter().filter(|(_, e)| !failed(e)).collect();
     if retried > 0 {
         observer.message(&format!("retrying {retried} job(s) that failed in an earlier run"));
     }
-    // A recorded shard that is gone (deleted, lost with a disk) is made again: the job is deterministic. (A damaged
-    // one takes reading every file: `verify --repair` finds those and records them failed, so they rerun here too.)
-    // A pruned one is not gone: its data are in the caches.
     let shards = cfg.dir.join(SHARDS);
-    let lost: Vec<u64> = finished
-        .iter()
-        .filter(|(_, e)| {
-            let name = e.shard_name(cfg.seed, cfg.sim.engine.name());
-            matches!(e.status, Status::Done { .. }) && !pruned.contains(&name) && !shards.join(&name).exists()
-        })
-        .map(|(id, _)| *id)
-        .collect();
-    for id in &lost {
-        finished.remove(id);
-    }
-    if !lost.is_empty() {
-        observer.message(&format!("{} recorded shard(s) are missing: running their jobs again", lost.len()));
-    }
-    let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
-    for e in finished.values() {
-        progress.record(&e.status);
-    }
-    progress.resumed = progress.finished();
-    let pending: VecDeque<Job> =
-        all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
-    if pending.is_empty() {
-        observer.update(&progress);
-        return Ok(progress);
-    }
-    let workers = cfg.workers.min(pending.len());
-    progress.slots.truncate(workers);
-
-    let id = RunId::for_dir(&cfg.dir)?;
-    dynforge_ipc::cleanup_stale(&id)?;
-    let mut ipc = Coordinator::new(&id, workers)?;
-    let mut procs = Processes::new(cfg.worker_command.clone(), cfg.dir.clone(), workers, lock);
-    for k in 0..workers {
-        procs.spawn(k)?;
-        ipc.attach_worker(k)?;
-    }
-    let mut run = Run {
-        cfg,
-        ledger,
-        pending,
-        running: vec![None; workers],
-        attempts: HashMap::new(),
-        progress,
-        ipc,
-        procs,
-        interrupted: false,
-        started: Instant::now(),
+    let lost = |e: &Entry| {
+        let name = e.shard_name(cfg.seed, cfg.sim.engine.name());
+        matches!(e.status, Status::Done { .. }) && !pruned.contains(&name) && !shards.join(&name).exists()
     };
-    let (mut last_status, mut last_liveness) = (Instant::now() - Duration::from_secs(1), Instant::now());
-    loop {
-        run.dispatch()?;
-        if run.busy() == 0 && (run.pending.is_empty() || run.interrupted) {
-            break;
-        }
-        run.receive(observer)?;
-        if last_liveness.elapsed() >= LIVENESS_TICK {
-            last_liveness = Instant::now();
-            run.liveness(observer)?;
-        }
-        if last_status.elapsed() >= STATUS_TICK {
-            last_status = Instant::now();
-            // Freed workers get their next job before the snapshot: otherwise the pool looks half idle.
-            run.dispatch()?;
-            run.publish(observer);
-        }
+    let missing = latest.values().filter(|e| !failed(e) && lost(e)).count();
+    if missing > 0 {
+        observer.message(&format!("{missing} recorded shard(s) are missing: running their jobs again"));
     }
-    run.finish(observer)
+    latest.into_iter().filter(|(_, e)| !failed(e) && !lost(e)).map(|(id, e)| (id, e.status.clone())).collect()
+}
+
+impl Run<'_> {
+    /// Hands out jobs and takes reports until every job is recorded (or the run is interrupted), watching the
+    /// workers and publishing the status on the way.
+    fn drive(mut self, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
+        let (mut last_status, mut last_liveness) = (Instant::now() - Duration::from_secs(1), Instant::now());
+        loop {
+            self.dispatch()?;
+            if self.busy() == 0 && (self.pending.is_empty() || self.interrupted) {
+                break;
+            }
+            self.receive(observer)?;
+            if last_liveness.elapsed() >= LIVENESS_TICK {
+                last_liveness = Instant::now();
+                self.liveness(observer)?;
+            }
+            if last_status.elapsed() >= STATUS_TICK {
+                last_status = Instant::now();
+                // Freed workers get their next job before the snapshot: otherwise the pool looks half idle.
+                self.dispatch()?;
+                self.publish(observer);
+            }
+        }
+        self.finish(observer)
+    }
 }
 
 /// This process's CPU time (user + system) in seconds, from /proc (in USER_HZ = 100 ticks per second).

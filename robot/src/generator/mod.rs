@@ -4,19 +4,14 @@
 //! process generates it and in whatever order. Inertial parameters follow exactly from the link geometry
 //! ([`section`]); every robot is checked for physical validity before it is returned.
 
-pub mod config;
 pub mod section;
 
-pub use config::{ConfigError, GeneratorConfig, Kinematics};
+pub use dynforge_proto::generator::{ConfigError, GENERATOR_VERSION, GeneratorConfig, Kinematics, Range};
 pub use section::{Beam, BeamInertia, Section, SectionKind};
 
 use crate::model::{Friction, Geometry, Inertial, Joint, JointKind, Limits, Link, Model, ModelError, Pose, Shape};
 use crate::rng::{Rng, domain};
 use crate::urdf::BaseLink;
-
-/// Version of the generation procedure, recorded with datasets: bump it whenever the same (seed, id) would give a
-/// different robot.
-pub const GENERATOR_VERSION: u32 = 1;
 
 /// A generated robot: the model plus the geometry it was built from (the worker's collision shapes use it).
 #[derive(Debug, Clone, PartialEq)]
@@ -36,7 +31,7 @@ impl GeneratedRobot {
     }
 }
 
-fn draw(rng: &mut Rng, r: &config::Range) -> f64 {
+fn draw(rng: &mut Rng, r: &Range) -> f64 {
     rng.uniform(r[0], r[1])
 }
 

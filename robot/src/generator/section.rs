@@ -8,22 +8,7 @@
 //! diagonal in the link frame:
 //! `Ixx = Iyy = m (k_t^2 + Var(z))`, `Izz = m k_a^2`, with `k_t^2 = I_x / A` and `k_a^2 = J / A`.
 
-use serde::{Deserialize, Serialize};
-
-/// Link cross-section shapes. `D` is the outer diameter (circle, tube) or the width across flats (square, hexagon).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum SectionKind {
-    Solid,
-    Tube,
-    Square,
-    Hexagon,
-}
-
-impl SectionKind {
-    pub const ALL: [SectionKind; 4] =
-        [SectionKind::Solid, SectionKind::Tube, SectionKind::Square, SectionKind::Hexagon];
-}
+pub use dynforge_proto::generator::SectionKind;
 
 /// A concrete cross-section.
 #[derive(Debug, Clone, Copy, PartialEq)]

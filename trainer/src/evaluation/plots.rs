@@ -17,12 +17,20 @@ fn font() {
     });
 }
 
-fn fail(path: &Path, e: impl std::fmt::Display) -> String {
-    format!("{}: {e}", path.display())
+/// A figure that could not be drawn or written.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {problem}")]
+pub struct PlotError {
+    pub file: String,
+    pub problem: String,
+}
+
+fn fail(path: &Path, e: impl std::fmt::Display) -> PlotError {
+    PlotError { file: path.display().to_string(), problem: e.to_string() }
 }
 
 /// Training and validation loss per epoch.
-pub fn learning_curves(path: &Path, history: &[EpochMetrics]) -> Result<(), String> {
+pub fn learning_curves(path: &Path, history: &[EpochMetrics]) -> Result<(), PlotError> {
     font();
     if history.is_empty() {
         return Err(fail(path, "no epochs to plot"));
@@ -66,9 +74,9 @@ pub fn predicted_vs_true(
     truth: &[[f64; NUM_LABELS]],
     mean: &[f64; NUM_LABELS],
     std: &[f64; NUM_LABELS],
-) -> Result<(), String> {
+) -> Result<(), PlotError> {
     font();
-    let groups = super::report::GROUPS;
+    let groups = dynforge_dataset::evaluation::tables::GROUPS;
     let root = BitMapBackend::new(path, (1500, 320)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| fail(path, e))?;
     for ((_, name, kinds), area) in groups.iter().zip(root.split_evenly((1, groups.len()))) {

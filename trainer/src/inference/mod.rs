@@ -2,10 +2,9 @@
 //! The transformer predicts every window and averages; the physics estimator reads the evidence of the recordings
 //! whole (more data is sharper evidence, not more votes). Both report the spread of their per-window predictions.
 
-mod physics;
 mod report;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
 use dynforge_identify::{Evidence, ParameterPrior, Prior, least_squares, refine};
@@ -13,14 +12,18 @@ use dynforge_proto::NUM_LABELS;
 use dynforge_recording::{GRID_DT, ReadError, Recording, read};
 use dynforge_robot::Model;
 
+use dynforge_dataset::cache::CacheError;
+use dynforge_dataset::cache::windows::CachedWindows;
+use dynforge_dataset::evaluation::EvaluationError;
+use dynforge_dataset::evaluation::recording::{RecordingError, normal_equations, physical_parameters, recording_error};
+use dynforge_dataset::evidence::{EvidenceError, features, measured_evidence};
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::windows::{row_width, windows};
+
 use crate::checkpoint::{Checkpoint, CheckpointError};
-use crate::data::cache::CachedWindows;
-use crate::data::dataset::{row_width, windows};
-use crate::data::features::JacobianFeatures;
-use crate::data::physics::{features, measured_evidence};
+use crate::evaluation::plots::PlotError;
 use crate::model::Network;
 use crate::training::predict;
-pub use physics::{normal_equations, physical_parameters, recording_error};
 pub use report::{EstimateReport, estimate_to_urdf};
 
 #[derive(Debug, thiserror::Error)]
@@ -29,8 +32,20 @@ pub enum InferenceError {
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
     Read(#[from] ReadError),
-    #[error("{file}: {problem}")]
-    Recording { file: String, problem: String },
+    #[error(transparent)]
+    Cache(#[from] CacheError),
+    #[error(transparent)]
+    Evidence(#[from] EvidenceError),
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    #[error(transparent)]
+    Urdf(#[from] dynforge_robot::ModelError),
+    #[error("{file}: {source}")]
+    Write { file: String, source: std::io::Error },
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    #[error(transparent)]
+    Evaluation(#[from] EvaluationError),
 }
 
 /// An estimate from one robot's recordings.
@@ -74,6 +89,8 @@ fn validation_rmse(dir: &Path) -> Option<[f64; NUM_LABELS]> {
 
 /// A loaded checkpoint, ready to estimate recordings.
 pub struct Predictor {
+    /// The checkpoint directory (its `report.json`, when `evaluate` left one, sets the refinement's prior spread).
+    pub dir: PathBuf,
     pub checkpoint: Checkpoint,
     model: Network,
     prior: Option<ParameterPrior>,
@@ -85,7 +102,7 @@ impl Predictor {
         let device = Device::default();
         let (checkpoint, model) = Checkpoint::load(dir, &device)?;
         let prior = checkpoint.parameter_prior();
-        Ok(Predictor { checkpoint, model, prior, device })
+        Ok(Predictor { dir: dir.to_path_buf(), checkpoint, model, prior, device })
     }
 
     /// The network (evaluation mode).
@@ -99,7 +116,7 @@ impl Predictor {
     }
 
     /// Predictions [SI] of standardised inputs (`count` examples of the model's input shape).
-    fn predict_standardised(&self, x: &[f32], count: usize) -> Vec<[f64; NUM_LABELS]> {
+    pub(crate) fn predict_standardised(&self, x: &[f32], count: usize) -> Vec<[f64; NUM_LABELS]> {
         let s = self.checkpoint.standardizer();
         predict(&self.model, x, count, self.checkpoint.model.input_shape(), &self.device)
             .iter()
@@ -109,30 +126,28 @@ impl Predictor {
 
     /// The physics estimator's predictions [SI] of pieces of evidence (e.g. windows', or robots' summed).
     pub fn predict_evidence(&self, evidence: &[Evidence]) -> Result<Vec<[f64; NUM_LABELS]>, InferenceError> {
-        let prior = self.prior.as_ref().ok_or_else(|| InferenceError::Recording {
+        let prior = self.prior.as_ref().ok_or_else(|| RecordingError {
             file: self.checkpoint.dataset.clone(),
             problem: "not a physics checkpoint".into(),
         })?;
         let s = self.checkpoint.standardizer();
         let mut x = Vec::new();
         for e in evidence {
-            let f = features(prior, e, &s.label_mean, &s.label_std).map_err(|err| InferenceError::Recording {
-                file: self.checkpoint.dataset.clone(),
-                problem: err.to_string(),
-            })?;
+            let f = features(prior, e, &s.label_mean, &s.label_std)
+                .map_err(|err| RecordingError { file: self.checkpoint.dataset.clone(), problem: err.to_string() })?;
             x.extend(s.row(&f));
         }
         Ok(self.predict_standardised(&x, evidence.len()))
     }
 
     /// Checks that `rec` fits the checkpoint and has a window at least.
-    fn check(&self, dir: &Path, rec: &Recording) -> Result<JacobianFeatures, InferenceError> {
+    fn check(&self, rec: &Recording) -> Result<JacobianFeatures, InferenceError> {
         let features = JacobianFeatures::new(&rec.model);
         let joints: Vec<String> = rec.model.joints().iter().map(|j| j.name.clone()).collect();
-        self.checkpoint.check_fits(dir, &joints, &features)?;
+        self.checkpoint.check_fits(&self.dir, &joints, &features)?;
         let spec = self.checkpoint.window_spec();
         if spec.windows(rec.trajectory.len()).is_empty() {
-            return Err(InferenceError::Recording {
+            return Err(InferenceError::Recording(RecordingError {
                 file: rec.path.display().to_string(),
                 problem: format!(
                     "{:.3} s of motion is shorter than one window ({:.3} s = {} samples x {} ms)",
@@ -141,25 +156,18 @@ impl Predictor {
                     spec.len,
                     spec.stride
                 ),
-            });
+            }));
         }
         Ok(features)
     }
 
     /// Per-window predictions [SI] of a recording (windows in `WindowSpec::windows` order), and for the physics
     /// estimator the evidence of the whole recording and each joint's torque noise (NRMSE).
-    pub fn windows(
-        &self,
-        dir: &Path,
-        rec: &Recording,
-    ) -> Result<(Vec<[f64; NUM_LABELS]>, Option<WholeRecording>), InferenceError> {
-        let features = self.check(dir, rec)?;
+    pub fn windows(&self, rec: &Recording) -> Result<(Vec<[f64; NUM_LABELS]>, Option<WholeRecording>), InferenceError> {
+        let features = self.check(rec)?;
         let spec = self.checkpoint.window_spec();
         if let Some(prior) = &self.prior {
-            let m = measured_evidence(rec, prior, &spec).map_err(|e| InferenceError::Recording {
-                file: rec.path.display().to_string(),
-                problem: e.to_string(),
-            })?;
+            let m = measured_evidence(rec, prior, &spec)?;
             return Ok((self.predict_evidence(&m.windows)?, Some((m.whole, m.noise))));
         }
         let (count, data) = windows(rec, &spec, &features);
@@ -178,12 +186,12 @@ impl Predictor {
 
     /// The estimate of one robot from its recordings `recs` (all of the same robot), checked against the
     /// checkpoint's joints (and, for the transformer, features).
-    pub fn estimate(&self, dir: &Path, recs: &[&Recording]) -> Result<Estimate, InferenceError> {
+    pub fn estimate(&self, recs: &[&Recording]) -> Result<Estimate, InferenceError> {
         let mut per_window = Vec::new();
         let mut whole: Option<Evidence> = None;
         let mut noise: Vec<f64> = Vec::new();
         for rec in recs {
-            let (w, e) = self.windows(dir, rec)?;
+            let (w, e) = self.windows(rec)?;
             per_window.extend(w);
             if let Some((e, n)) = e {
                 noise.resize(n.len(), 0.0);
@@ -209,10 +217,10 @@ impl Predictor {
     /// torques (least squares on the regressor) with the estimate as prior. The prior's spread per label is the
     /// estimator's per-robot validation RMSE from `report.json` in the checkpoint directory (written by `evaluate`),
     /// or the training labels' spread when there is none.
-    pub fn refine(&self, dir: &Path, p: &Recording, e: &Estimate) -> Result<Refinement, InferenceError> {
+    pub fn refine(&self, p: &Recording, e: &Estimate) -> Result<Refinement, InferenceError> {
         let ne = normal_equations(p)?;
         let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
-        let validated = validation_rmse(dir);
+        let validated = validation_rmse(&self.dir);
         let std = validated.unwrap_or_else(|| std::array::from_fn(|k| self.checkpoint.label_std[k]));
         let prior = Prior::new(e.labels, &std).map_err(|err| recording_error(p, err))?;
         let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|err| recording_error(p, err))?;
@@ -229,14 +237,9 @@ impl Predictor {
 
     /// Reads and estimates the recording `path`; its robot comes from its `/robot_description` unless `urdf` is
     /// given.
-    pub fn estimate_file(
-        &self,
-        dir: &Path,
-        path: &Path,
-        urdf: Option<&Model>,
-    ) -> Result<(Recording, Estimate), InferenceError> {
+    pub fn estimate_file(&self, path: &Path, urdf: Option<&Model>) -> Result<(Recording, Estimate), InferenceError> {
         let p = read(path, urdf)?;
-        let e = self.estimate(dir, &[&p])?;
+        let e = self.estimate(&[&p])?;
         Ok((p, e))
     }
 }

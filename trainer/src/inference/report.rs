@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use dynforge_dataset::evaluation::recording::recording_error;
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_robot::{parameters, urdf};
 
@@ -36,28 +37,23 @@ pub fn estimate_to_urdf(
     refine: bool,
 ) -> Result<EstimateReport, InferenceError> {
     let predictor = Predictor::load(dir)?;
-    let model = urdf::parse(document.0, document.1)
-        .map_err(|e| InferenceError::Recording { file: document.1.to_string(), problem: e.problem.to_string() })?;
-    let (rec, estimate) = predictor.estimate_file(dir, log, Some(&model))?;
+    let model = urdf::parse(document.0, document.1)?;
+    let (rec, estimate) = predictor.estimate_file(log, Some(&model))?;
     let (refinement, warning) = match refine {
         false => (None, None),
-        true => match predictor.refine(dir, &rec, &estimate) {
+        true => match predictor.refine(&rec, &estimate) {
             Ok(r) => (Some(r), None),
             Err(e) => (None, Some(format!("the estimate is not refined by physics: {e}"))),
         },
     };
     let wanted = refinement.as_ref().map_or(estimate.labels, |r| r.labels);
-    let bad = |e: &dyn std::fmt::Display| InferenceError::Recording {
-        file: log.display().to_string(),
-        problem: e.to_string(),
-    };
-    let (robot, projections) = parameters::with_labels(&rec.model, &wanted).map_err(|e| bad(&e))?;
+    let (robot, projections) =
+        parameters::model_with_labels(&rec.model, &wanted).map_err(|e| recording_error(&rec, e))?;
     // What is reported is what the URDF carries: the labels after any projection into physics.
-    let values = parameters::labels(&robot).map_err(|e| bad(&e))?;
-    let (text, notes) = urdf::patch(document.0, document.1, &robot)
-        .map_err(|e| InferenceError::Recording { file: document.1.to_string(), problem: e.problem.to_string() })?;
+    let values = parameters::labels_of(&robot).map_err(|e| recording_error(&rec, e))?;
+    let (text, notes) = urdf::patch(document.0, document.1, &robot)?;
     dynforge_proto::run_dir::write_atomic(out, text.as_bytes())
-        .map_err(|e| InferenceError::Recording { file: out.display().to_string(), problem: e.to_string() })?;
+        .map_err(|source| InferenceError::Write { file: out.display().to_string(), source })?;
     let urdf = out.into();
     Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, notes, urdf })
 }

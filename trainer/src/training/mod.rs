@@ -5,8 +5,7 @@
 //! (dropout) is reseeded from `(seed, step)` before every step, so a run resumed from its last checkpoint (weights
 //! with their parameter ids, optimizer moments, step counter) takes the same steps as one that never stopped.
 
-mod corpus;
-pub mod physics;
+pub mod recipe;
 pub mod schedule;
 pub mod session;
 
@@ -25,10 +24,11 @@ use dynforge_robot::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{Checkpoint, CheckpointError, write_atomic};
-use crate::data::normalize::Standardizer;
-use crate::metrics::{Scores, score};
 use crate::model::{Network, NetworkConfig};
-pub use corpus::Corpus;
+use dynforge_dataset::examples::Examples;
+pub use dynforge_dataset::metrics::EpochMetrics;
+use dynforge_dataset::metrics::write_history;
+use dynforge_dataset::metrics::{Scores, score};
 use schedule::Schedule;
 
 /// Optimisation settings.
@@ -73,32 +73,6 @@ impl Default for TrainConfig {
             micro_batches: default_micro_batches(),
         }
     }
-}
-
-/// JSON has no infinities or NaN (serde_json writes them as null): read null back as NaN.
-fn nullable<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
-}
-
-/// One epoch's figures, as written to metrics.csv / metrics.json.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct EpochMetrics {
-    pub epoch: usize,
-    pub step: usize,
-    pub lr: f64,
-    pub train_loss: f64,
-    pub validation_loss: f64,
-    /// -inf when a target is constant over the validation windows (a single validation robot).
-    #[serde(deserialize_with = "nullable")]
-    pub validation_r2: f64,
-    pub validation_rmse: f64,
-    pub windows_per_second: f64,
-    /// Wall-clock seconds of this epoch: preparing its examples and its training steps (not validation).
-    pub seconds: f64,
-    /// Process CPU seconds (user + system, all threads) of the same span: the cost measure for comparing designs on
-    /// accuracy per CPU-hour.
-    #[serde(default)]
-    pub cpu_seconds: f64,
 }
 
 /// Progress of a run, saved with every checkpoint.
@@ -146,27 +120,6 @@ pub enum TrainError {
     Setup(String),
 }
 
-/// What a run trains on: standardised examples of both splits. The transformer's are windows ([`Corpus`]); the
-/// physics estimator's are pieces of evidence, real and drawn from the generator ([`physics::PhysicsExamples`]).
-pub trait Examples: Sync {
-    /// The shape of one example's input, `[steps, values per step]`.
-    fn shape(&self) -> [usize; 2];
-    /// The statistics that standardise inputs and labels.
-    fn standardizer(&self) -> &Standardizer;
-    /// Prepares epoch `epoch` (e.g. draws its generated examples); called before its first batch, also on resume.
-    fn begin_epoch(&mut self, _epoch: usize) {}
-    fn train_len(&self) -> usize;
-    /// Training examples an epoch will have, known before [`Examples::begin_epoch`] draws any.
-    fn planned_train_len(&self) -> usize {
-        self.train_len()
-    }
-    fn validation_len(&self) -> usize;
-    /// Standardised inputs and targets of training examples `ids` (`0..train_len()`), concatenated.
-    fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>);
-    /// Standardised inputs of every validation example, concatenated, and their labels [SI].
-    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>);
-}
-
 /// Standardised predictions of `model` for standardised inputs `x` (`count` examples of `shape`), in batches.
 pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], device: &Device) -> Vec<[f32; NUM_LABELS]> {
     const CHUNK: usize = 256;
@@ -183,7 +136,7 @@ pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], devi
     };
     // Chunk boundaries do not depend on the core count, so neither do the predictions.
     let starts: Vec<usize> = (0..count).step_by(CHUNK).collect();
-    crate::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
+    dynforge_dataset::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
 }
 
 /// Scores, SI predictions and mean squared error (standardised) of `model` on the validation examples.
@@ -296,31 +249,6 @@ fn load_state(
     Ok((optim, state))
 }
 
-fn write_metrics(dir: &Path, history: &[EpochMetrics]) -> Result<(), TrainError> {
-    let mut csv = String::from(
-        "epoch,step,lr,train_loss,validation_loss,validation_r2,validation_rmse,windows_per_second,seconds,cpu_seconds\n",
-    );
-    for m in history {
-        csv.push_str(&format!(
-            "{},{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{:.2}\n",
-            m.epoch,
-            m.step,
-            m.lr,
-            m.train_loss,
-            m.validation_loss,
-            m.validation_r2,
-            m.validation_rmse,
-            m.windows_per_second,
-            m.seconds,
-            m.cpu_seconds
-        ));
-    }
-    write_atomic(&dir.join("metrics.csv"), csv.as_bytes())?;
-    let json = serde_json::to_vec_pretty(history).map_err(|e| io(&dir.join("metrics.json"), e))?;
-    write_atomic(&dir.join("metrics.json"), &json)?;
-    Ok(())
-}
-
 /// CPU time this process has used so far, all threads; 0 where the OS does not say.
 fn process_cpu_seconds() -> f64 {
     // SAFETY: getrusage only writes the struct it is given.
@@ -355,21 +283,29 @@ pub fn resumable(dir: &Path) -> bool {
     train_dir(dir).join("state.json").is_file()
 }
 
-/// Trains `checkpoint.model` on `examples` into the checkpoint directory `dir`, from scratch or resuming its saved
-/// state. Stops after the last epoch, on early stopping, or when `stop` becomes true (checkpointing first).
-/// `grow`, if given, runs before every epoch and may add examples (training while generating); the
-/// learning-rate schedule then follows the current size. Exact resume needs examples that did not grow.
-#[allow(clippy::too_many_arguments)]
+/// Where and how a run trains (besides its examples and model).
+pub struct Run<'a> {
+    /// The checkpoint directory: description, best weights, metrics and the resume state.
+    pub dir: &'a Path,
+    pub config: &'a TrainConfig,
+    /// Continue the state saved in `dir` instead of starting afresh.
+    pub resume: bool,
+    /// Set (e.g. by a signal handler) to checkpoint and stop at the next step.
+    pub stop: &'a AtomicBool,
+}
+
+/// Trains `checkpoint.model` on `examples` as `run` says, from scratch or resuming its saved state. Stops after the
+/// last epoch, on early stopping, or when `run.stop` becomes true (checkpointing first). `grow`, if given, runs
+/// before every epoch and may add examples (training while generating); the learning-rate schedule then follows
+/// the current size. Exact resume needs examples that did not grow.
 pub fn train<E: Examples>(
     examples: &mut E,
     mut grow: Option<&mut dyn FnMut(&mut E)>,
-    mut checkpoint: Checkpoint,
-    cfg: &TrainConfig,
-    dir: &Path,
-    resume: bool,
+    checkpoint: Checkpoint,
+    run: &Run,
     observer: &mut dyn TrainObserver,
-    stop: &AtomicBool,
 ) -> Result<TrainSummary, TrainError> {
+    let cfg = run.config;
     if examples.planned_train_len() == 0 || examples.validation_len() == 0 {
         return Err(TrainError::Setup(format!(
             "{} training and {} validation examples: both splits need windows (more robots, or another validation fraction)",
@@ -383,69 +319,120 @@ pub fn train<E: Examples>(
     let device = Device::default().autodiff();
     device.seed(cfg.seed);
     let mut model = checkpoint.model.init(&device)?;
-    let mut optim = optimizer(cfg);
-    let mut state = TrainState {
-        config: cfg.clone(),
-        epoch: 0,
-        step: 0,
-        batch_in_epoch: 0,
-        train_loss_sum: 0.0,
-        // Finite (JSON has no infinity): any real loss is below it.
-        best_loss: f64::MAX,
-        best_epoch: 0,
-        history: Vec::new(),
-        stopped_early: false,
-    };
-    if resume {
-        let (o, s) = load_state(dir, &mut model, optim)?;
-        let (was, now) = (&s.config, cfg);
-        if (was.seed, was.batch, was.micro_batches) != (now.seed, now.batch, now.micro_batches) {
-            return Err(TrainError::Setup(format!(
-                "{}: the run was started with seed {}, batch {} and {} micro-batches; resume it with the same \
-                 (they decide the batches and the rounding of the gradients)",
-                dir.display(),
-                was.seed,
-                was.batch,
-                was.micro_batches
-            )));
-        }
-        observer.message(&format!("resuming {} at epoch {}{}", dir.display(), s.epoch, changes(was, now)));
-        optim = o;
-        state = TrainState { config: cfg.clone(), ..s };
-        checkpoint = Checkpoint::read(dir)?;
-    } else {
-        std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
-        // The description first: a run interrupted before its first epoch still resumes with its statistics.
-        checkpoint.describe(dir)?;
-    }
-
+    let (mut optim, state, checkpoint) = start(run, checkpoint, &mut model, observer)?;
+    let mut l = Loop { run, device, state, checkpoint };
     let mut interrupted = false;
-    while state.epoch < cfg.epochs && !state.stopped_early {
+    while l.state.epoch < cfg.epochs && !l.state.stopped_early {
         // An epoch's cost includes preparing its examples (the physics estimator draws and featurises its generated
         // robots here), not only the gradient steps.
-        let started = Instant::now();
-        let cpu_started = process_cpu_seconds();
+        let started = (Instant::now(), process_cpu_seconds());
         if let Some(g) = grow.as_mut() {
             g(examples);
         }
-        examples.begin_epoch(state.epoch);
+        examples.begin_epoch(l.state.epoch);
+        let trained;
+        (model, trained) = l.steps(examples, model, &mut optim, observer)?;
+        let Some(trained) = trained else {
+            interrupted = true;
+            save_state(run.dir, &model, &optim, &l.state)?;
+            break;
+        };
+        l.end_epoch(examples, &model, (started, trained), observer)?;
+        save_state(run.dir, &model, &optim, &l.state)?;
+    }
+    Ok(TrainSummary {
+        history: l.state.history,
+        best_epoch: l.state.best_epoch,
+        interrupted,
+        stopped_early: l.state.stopped_early,
+    })
+}
+
+/// The optimizer, progress and checkpoint a run starts from: fresh (its description written first, so a run
+/// interrupted before its first epoch still resumes with its statistics), or the state saved in `run.dir` (loaded
+/// into `model`), refused if the settings that decide the batches changed.
+fn start(
+    run: &Run,
+    checkpoint: Checkpoint,
+    model: &mut Network,
+    observer: &mut dyn TrainObserver,
+) -> Result<(ModuleOptimizer, TrainState, Checkpoint), TrainError> {
+    let cfg = run.config;
+    if !run.resume {
+        std::fs::create_dir_all(run.dir).map_err(|e| io(run.dir, e))?;
+        checkpoint.describe(run.dir)?;
+        let state = TrainState {
+            config: cfg.clone(),
+            epoch: 0,
+            step: 0,
+            batch_in_epoch: 0,
+            train_loss_sum: 0.0,
+            // Finite (JSON has no infinity): any real loss is below it.
+            best_loss: f64::MAX,
+            best_epoch: 0,
+            history: Vec::new(),
+            stopped_early: false,
+        };
+        return Ok((optimizer(cfg), state, checkpoint));
+    }
+    let (optim, s) = load_state(run.dir, model, optimizer(cfg))?;
+    let (was, now) = (&s.config, cfg);
+    if (was.seed, was.batch, was.micro_batches) != (now.seed, now.batch, now.micro_batches) {
+        return Err(TrainError::Setup(format!(
+            "{}: the run was started with seed {}, batch {} and {} micro-batches; resume it with the same \
+             (they decide the batches and the rounding of the gradients)",
+            run.dir.display(),
+            was.seed,
+            was.batch,
+            was.micro_batches
+        )));
+    }
+    observer.message(&format!("resuming {} at epoch {}{}", run.dir.display(), s.epoch, changes(was, now)));
+    let state = TrainState { config: cfg.clone(), ..s };
+    Ok((optim, state, Checkpoint::read(run.dir)?))
+}
+
+/// A run in progress: its settings, device, progress and checkpoint description.
+struct Loop<'a> {
+    run: &'a Run<'a>,
+    device: Device,
+    state: TrainState,
+    checkpoint: Checkpoint,
+}
+
+impl Loop<'_> {
+    /// The learning-rate schedule over the run at the current number of training examples.
+    fn schedule(&self, examples: &impl Examples) -> Schedule {
+        let cfg = self.run.config;
+        Schedule::new(cfg.lr, cfg.warmup, cfg.epochs * examples.train_len().div_ceil(cfg.batch))
+    }
+
+    /// The optimisation steps of the current epoch from where it stands: the model after them, and the examples
+    /// trained on (`None` when `run.stop` interrupted the epoch).
+    fn steps(
+        &mut self,
+        examples: &impl Examples,
+        mut model: Network,
+        optim: &mut ModuleOptimizer,
+        observer: &mut dyn TrainObserver,
+    ) -> Result<(Network, Option<usize>), TrainError> {
+        let schedule = self.schedule(examples);
+        let (cfg, device, state) = (self.run.config, &self.device, &mut self.state);
         let batches = examples.train_len().div_ceil(cfg.batch);
-        let schedule = Schedule::new(cfg.lr, cfg.warmup, cfg.epochs * batches);
         let order = epoch_order(cfg.seed, state.epoch, examples.train_len());
+        let shape = examples.shape();
         let mut trained = 0usize;
         for b in state.batch_in_epoch..batches {
-            if stop.load(Ordering::Relaxed) {
-                interrupted = true;
-                break;
+            if self.run.stop.load(Ordering::Relaxed) {
+                return Ok((model, None));
             }
             let ids = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
-            let shape = examples.shape();
             let (value, grads) =
-                step_gradients(&model, ids.len(), cfg.micro_batches, (cfg.seed, state.step as u64), &device, |r| {
+                step_gradients(&model, ids.len(), cfg.micro_batches, (cfg.seed, state.step as u64), device, |r| {
                     let (x, y) = examples.train_batch(&ids[r.clone()]);
                     (
-                        Tensor::from_data(TensorData::new(x, [r.len(), shape[0], shape[1]]), &device),
-                        Tensor::from_data(TensorData::new(y, [r.len(), NUM_LABELS]), &device),
+                        Tensor::from_data(TensorData::new(x, [r.len(), shape[0], shape[1]]), device),
+                        Tensor::from_data(TensorData::new(y, [r.len(), NUM_LABELS]), device),
                     )
                 });
             if !value.is_finite() {
@@ -461,18 +448,28 @@ pub fn train<E: Examples>(
             trained += ids.len();
             observer.step(state.epoch, b + 1, batches, value);
         }
-        if interrupted {
-            save_state(dir, &model, &optim, &state)?;
-            break;
-        }
+        Ok((model, Some(trained)))
+    }
+
+    /// Validation after an epoch: its metrics, the checkpoint if it is the best so far, early stopping, the
+    /// metrics files. `started` is the wall clock and process CPU time at the epoch's start, `trained` its examples.
+    fn end_epoch(
+        &mut self,
+        examples: &impl Examples,
+        model: &Network,
+        ((started, cpu_started), trained): ((Instant, f64), usize),
+        observer: &mut dyn TrainObserver,
+    ) -> Result<(), TrainError> {
         let seconds = started.elapsed().as_secs_f64();
         let cpu_seconds = process_cpu_seconds() - cpu_started;
         let valid = model.valid();
-        let (scores, _, val_loss) = evaluate(&valid, examples, &device.clone().inner());
+        let (scores, _, val_loss) = evaluate(&valid, examples, &self.device.clone().inner());
+        let lr = self.schedule(examples).lr(self.state.step.saturating_sub(1));
+        let state = &mut self.state;
         let m = EpochMetrics {
             epoch: state.epoch,
             step: state.step,
-            lr: schedule.lr(state.step.saturating_sub(1)),
+            lr,
             train_loss: state.train_loss_sum / examples.train_len() as f64,
             validation_loss: val_loss,
             validation_r2: scores.r2,
@@ -485,25 +482,18 @@ pub fn train<E: Examples>(
         if best {
             state.best_loss = val_loss;
             state.best_epoch = state.epoch;
-            checkpoint.epoch = state.epoch;
-            checkpoint.validation_loss = Some(val_loss);
-            checkpoint.save(dir, &valid)?;
+            self.checkpoint.epoch = state.epoch;
+            self.checkpoint.validation_loss = Some(val_loss);
+            self.checkpoint.save(self.run.dir, &valid)?;
         }
         state.history.push(m.clone());
         observer.epoch(&m, best);
         state.epoch += 1;
         state.batch_in_epoch = 0;
         state.train_loss_sum = 0.0;
-        state.stopped_early = state.epoch - state.best_epoch > cfg.patience;
-        write_metrics(dir, &state.history)?;
-        save_state(dir, &model, &optim, &state)?;
+        state.stopped_early = state.epoch - state.best_epoch > self.run.config.patience;
+        write_history(self.run.dir, &state.history).map_err(|e| io(&e.0, e.1))
     }
-    Ok(TrainSummary {
-        history: state.history,
-        best_epoch: state.best_epoch,
-        interrupted,
-        stopped_early: state.stopped_early,
-    })
 }
 
 /// Training throughput of architecture `cfg` in windows per second: `steps` optimisation steps (after `warmup`

@@ -6,110 +6,26 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use dynforge_dataset::examples::Examples;
+
+use dynforge_dataset::cache::evidence::PhysicsSet;
+use dynforge_dataset::cache::windows::CachedWindows;
+use dynforge_dataset::cache::{CacheError, Skipped};
+use dynforge_dataset::evidence::{self, Draw, EvidenceError, draw_seed};
+use dynforge_dataset::examples::ExampleRecord;
+use dynforge_dataset::examples::corpus::Corpus;
+use dynforge_dataset::examples::generated::{ExamplesError, PhysicsExamples, PhysicsSource};
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::normalize::{Standardizer, split_windows};
+use dynforge_dataset::prepare::ModelKind;
+use dynforge_dataset::window::WindowSpec;
 use dynforge_recording::ReadError;
 use dynforge_recording::dataset::{ShardFollower, dataset_robot, generator, shard_dir};
 
-use super::physics::{PhysicsExamples, PhysicsSource};
-use super::{Corpus, Examples, TrainConfig, TrainError, TrainObserver, TrainSummary, resumable, train};
-use crate::checkpoint::{Checkpoint, CheckpointError, ExampleRecord, PriorRecord};
-use crate::data::cache::{CachedWindows, load_or_build};
-use crate::data::features::JacobianFeatures;
-use crate::data::normalize::{Standardizer, split_windows};
-use crate::data::physics::{self, Draw, PhysicsError, PhysicsSet, draw_seed};
-use crate::data::window::WindowSpec;
-use crate::model::{NetworkConfig, PhysicsConfig, Preset, TransformerConfig};
-
-/// Which estimator a run trains.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
-pub enum ModelKind {
-    /// Physics as input: what each window's torques identify (posterior of the generator's parameter prior),
-    /// mapped to the labels by a network trained on generated robots.
-    Physics,
-    /// The paper's transformer over downsampled windows of q, qd, tau and Jacobian features.
-    Transformer,
-}
-
-/// The architecture: the estimator, and the parts of its default size a run overrides.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModelChoice {
-    pub kind: ModelKind,
-    /// The transformer's preset.
-    pub preset: Preset,
-    pub layers: Option<usize>,
-    pub heads: Option<usize>,
-    /// The transformer's embedding size, the physics map's hidden width.
-    pub dim: Option<usize>,
-    pub patch: Option<usize>,
-    pub dropout: Option<f64>,
-}
-
-impl ModelChoice {
-    pub fn new(kind: ModelKind, preset: Preset) -> Self {
-        ModelChoice { kind, preset, layers: None, heads: None, dim: None, patch: None, dropout: None }
-    }
-
-    /// The transformer's configuration for `inputs` values per step of `seq_len`-step windows.
-    pub fn transformer(&self, inputs: usize, seq_len: usize) -> TransformerConfig {
-        let mut c = self.preset.config(inputs, seq_len);
-        if let Some(d) = self.dim {
-            c.d_model = d;
-            c.d_ff = 4 * d;
-        }
-        c.layers = self.layers.unwrap_or(c.layers);
-        c.heads = self.heads.unwrap_or(c.heads);
-        c.patch = self.patch.unwrap_or(c.patch);
-        c.dropout = self.dropout.unwrap_or(c.dropout);
-        c
-    }
-
-    /// The physics map's configuration for `inputs` features.
-    pub fn physics(&self, inputs: usize) -> PhysicsConfig {
-        let mut c = PhysicsConfig::new(inputs);
-        c.hidden = self.dim.unwrap_or(c.hidden);
-        c.layers = self.layers.unwrap_or(c.layers);
-        c.dropout = self.dropout.unwrap_or(c.dropout);
-        c
-    }
-}
-
-/// What defines a training run besides its data and output directory.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Recipe {
-    pub model: ModelChoice,
-    pub window: WindowSpec,
-    pub train: TrainConfig,
-    /// Share of the robots held out for validation.
-    pub validation: f64,
-    /// Robots drawn from the generator per epoch (physics estimator).
-    pub generated_per_epoch: usize,
-    /// Physics estimator: train on the generated robots only, the dataset's windows serving as excitations and
-    /// for validation.
-    pub generated_only: bool,
-    /// Physics estimator: half the generated robots carry torque noise, weighted as `estimate` weighs a noisy log.
-    pub noisy: bool,
-}
-
-impl Recipe {
-    /// The defaults of a run of `kind`. The transformer: the paper's architecture, AdamW at 5e-4, batch 64 in 4
-    /// micro-batches (fastest on 2 cores). The physics map: a small network on many cheap examples, so larger batches
-    /// and rate; 32,768 generated robots per epoch (~2 s of drawing per epoch per core).
-    pub fn defaults(kind: ModelKind) -> Recipe {
-        let train = match kind {
-            ModelKind::Transformer => TrainConfig::default(),
-            ModelKind::Physics => TrainConfig { batch: 256, lr: 1e-3, micro_batches: 2, ..TrainConfig::default() },
-        };
-        Recipe {
-            model: ModelChoice::new(kind, Preset::Paper),
-            window: WindowSpec::default(),
-            train,
-            validation: 0.2,
-            generated_per_epoch: 32_768,
-            generated_only: false,
-            noisy: false,
-        }
-    }
-}
+use super::recipe::Recipe;
+use super::{Run, TrainError, TrainObserver, TrainSummary, resumable, train};
+use crate::checkpoint::{Checkpoint, CheckpointError, PriorRecord};
+use crate::model::NetworkConfig;
 
 /// What differs between two example settings, as `generated robots per epoch 32768 -> 65536, real examples
 /// trained on -> left out`.
@@ -143,7 +59,11 @@ pub enum SessionError {
     #[error(transparent)]
     Read(#[from] ReadError),
     #[error(transparent)]
-    Physics(#[from] PhysicsError),
+    Evidence(#[from] EvidenceError),
+    #[error(transparent)]
+    Cache(#[from] CacheError),
+    #[error(transparent)]
+    Examples(#[from] ExamplesError),
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
     #[error(transparent)]
@@ -162,49 +82,6 @@ pub enum Inputs {
 pub struct Trained {
     pub summary: TrainSummary,
     pub inputs: Inputs,
-}
-
-/// Builds the cache a session of `kind` with window geometry `spec` reads from the `generate` directory `data` (or
-/// finds it current), without training: what `dataset prepare` runs on each partition before its shards are pruned.
-/// Returns what the cache holds. An error if any shard had to be skipped, since pruning would lose it.
-pub fn prepare(
-    data: &Path,
-    kind: ModelKind,
-    spec: &WindowSpec,
-    stop: &AtomicBool,
-    observer: &mut dyn SessionObserver,
-) -> Result<String, SessionError> {
-    let (what, skipped, hit) = match kind {
-        ModelKind::Physics => {
-            observer.message(&format!("fitting the generator's parameter prior to {} robots", physics::PRIOR_ROBOTS));
-            let prior = physics::dataset_prior(data)?;
-            let (set, skipped) = physics::load_or_build(data, spec, &prior, |k, n| {
-                observer.preprocessing("physics", k, n);
-                !stop.load(Ordering::Relaxed)
-            })?;
-            (
-                format!("physics of {} windows and {} recordings", set.windows.len(), set.recordings.len()),
-                skipped,
-                set.hit,
-            )
-        }
-        ModelKind::Transformer => {
-            let features = JacobianFeatures::new(&dataset_robot(data)?);
-            let (w, skipped) = load_or_build(data, spec, &features, |k, n| {
-                observer.preprocessing("windows", k, n);
-                !stop.load(Ordering::Relaxed)
-            })?;
-            (format!("{} windows of {} x {} values", w.count(), spec.len, w.width), skipped, w.hit)
-        }
-    };
-    if !skipped.is_empty() {
-        return Err(SessionError::Setup(format!(
-            "{} shard(s) could not be cached ({}); `dynforge verify --repair` then `generate` remake them",
-            skipped.len(),
-            skipped.join("; ")
-        )));
-    }
-    Ok(format!("{what} ({})", if hit { "already cached" } else { "cached" }))
 }
 
 /// One training run.
@@ -257,6 +134,10 @@ impl Session<'_> {
         }
     }
 
+    fn training_run(&self, resume: bool) -> Run<'_> {
+        Run { dir: self.out, config: &self.recipe.train, resume, stop: self.stop }
+    }
+
     fn split(&self, previous: &Option<Checkpoint>) -> (u64, f64) {
         previous
             .as_ref()
@@ -295,45 +176,13 @@ impl Session<'_> {
     ) -> Result<Trained, SessionError> {
         let spec = previous.as_ref().map_or(self.recipe.window, Checkpoint::window_spec);
         let split = self.split(&previous);
-        let (windows, features, joints) = if self.follow {
-            let robot = self.wait_for_robot(observer)?;
-            let empty =
-                CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false };
-            (empty, JacobianFeatures::new(&robot), joint_names(&robot))
-        } else {
-            let robot = dataset_robot(self.data)?;
-            let features = JacobianFeatures::new(&robot);
-            let (w, skipped) = load_or_build(self.data, &spec, &features, |k, n| {
-                observer.preprocessing("windows", k, n);
-                !self.stop.load(Ordering::Relaxed)
-            })?;
-            skip(observer, &skipped);
-            observer.message(&format!(
-                "{} windows of {} x {} values ({})",
-                w.count(),
-                spec.len,
-                w.width,
-                if w.hit { "from the cache" } else { "built and cached" }
-            ));
-            (w, features, joint_names(&robot))
-        };
+        let (windows, features, joints) = self.windows(&spec, observer)?;
         // After the first shard exists, so that `shards/` of a generate directory is what is followed.
         let mut follower = ShardFollower::new(&shard_dir(self.data));
         let mut corpus =
             Corpus { windows, train: Vec::new(), validation: Vec::new(), standardizer: Standardizer::fit_empty() };
         if self.follow {
-            // Both splits need windows before the statistics can be fitted.
-            loop {
-                let new = follower.poll().map_err(|e| self.listing(e))?;
-                skip(observer, &corpus.add_shards(&new, &features, split.0, split.1));
-                if !corpus.train.is_empty() && !corpus.validation.is_empty() {
-                    break;
-                }
-                if self.stop.load(Ordering::Relaxed) {
-                    return Err(SessionError::Setup("interrupted while waiting for shards of both splits".into()));
-                }
-                std::thread::sleep(Duration::from_secs(2));
-            }
+            self.wait_for_both_splits(&mut corpus, &mut follower, &features, split, observer)?;
         } else {
             (corpus.train, corpus.validation) = split_windows(&corpus.windows, split.0, split.1);
         }
@@ -358,10 +207,77 @@ impl Session<'_> {
         ));
         // Messages of the growth step wait for the observer's next call (both need it mutably).
         let notes = std::cell::RefCell::new(Vec::new());
-        let mut grow = |c: &mut Corpus| match follower.poll() {
+        let mut grow = |c: &mut Corpus| self.grow(c, &mut follower, &features, split, &notes);
+        let grow: Option<&mut dyn FnMut(&mut Corpus)> = if self.follow { Some(&mut grow) } else { None };
+        let mut relay = Relay { observer, notes: Some(&notes) };
+        let summary = train(&mut corpus, grow, checkpoint, &self.training_run(resume), &mut relay)?;
+        relay.flush();
+        self.finish(summary, Inputs::Windows(corpus.windows), observer)
+    }
+
+    /// The dataset's windows (none yet when following a generation), its features and joint names.
+    fn windows(
+        &self,
+        spec: &WindowSpec,
+        observer: &mut dyn SessionObserver,
+    ) -> Result<(CachedWindows, JacobianFeatures, Vec<String>), SessionError> {
+        if self.follow {
+            let robot = self.wait_for_robot(observer)?;
+            return Ok((CachedWindows::new(*spec), JacobianFeatures::new(&robot), joint_names(&robot)));
+        }
+        let robot = dataset_robot(self.data)?;
+        let features = JacobianFeatures::new(&robot);
+        let (w, skipped) = CachedWindows::load_or_build(self.data, spec, &features, |k, n| {
+            observer.preprocessing("windows", k, n);
+            !self.stop.load(Ordering::Relaxed)
+        })?;
+        skip(observer, &skipped);
+        observer.message(&format!(
+            "{} windows of {} x {} values ({})",
+            w.count(),
+            spec.len,
+            w.width,
+            if w.hit { "from the cache" } else { "built and cached" }
+        ));
+        Ok((w, features, joint_names(&robot)))
+    }
+
+    /// Adds the shards a followed generation writes until both splits have windows (the statistics need both).
+    fn wait_for_both_splits(
+        &self,
+        corpus: &mut Corpus,
+        follower: &mut ShardFollower,
+        features: &JacobianFeatures,
+        split: (u64, f64),
+        observer: &mut dyn SessionObserver,
+    ) -> Result<(), SessionError> {
+        loop {
+            let new = follower.poll().map_err(|e| self.listing(e))?;
+            skip(observer, &corpus.add_shards(&new, features, split.0, split.1));
+            if !corpus.train.is_empty() && !corpus.validation.is_empty() {
+                return Ok(());
+            }
+            if self.stop.load(Ordering::Relaxed) {
+                return Err(SessionError::Setup("interrupted while waiting for shards of both splits".into()));
+            }
+            std::thread::sleep(Duration::from_secs(2));
+        }
+    }
+
+    /// Between epochs of a followed generation: the windows of the shards written since, with a note for the
+    /// observer.
+    fn grow(
+        &self,
+        c: &mut Corpus,
+        follower: &mut ShardFollower,
+        features: &JacobianFeatures,
+        split: (u64, f64),
+        notes: &std::cell::RefCell<Vec<String>>,
+    ) {
+        match follower.poll() {
             Ok(new) if !new.is_empty() => {
                 let before = c.windows.count();
-                let skipped = c.add_shards(&new, &features, split.0, split.1);
+                let skipped = c.add_shards(&new, features, split.0, split.1);
                 let mut n = notes.borrow_mut();
                 n.extend(skipped.iter().map(|s| format!("warning: skipped {s}")));
                 n.push(format!(
@@ -373,13 +289,7 @@ impl Session<'_> {
             }
             Ok(_) => {}
             Err(e) => notes.borrow_mut().push(format!("warning: listing {}: {e}", self.data.display())),
-        };
-        let grow: Option<&mut dyn FnMut(&mut Corpus)> = if self.follow { Some(&mut grow) } else { None };
-        let mut relay = Relay { observer, notes: Some(&notes) };
-        let summary =
-            train(&mut corpus, grow, checkpoint, &self.recipe.train, self.out, resume, &mut relay, self.stop)?;
-        relay.flush();
-        self.finish(summary, Inputs::Windows(corpus.windows), observer)
+        }
     }
 
     fn physics(
@@ -398,7 +308,7 @@ impl Session<'_> {
         let spec = previous.as_ref().map_or(self.recipe.window, Checkpoint::window_spec);
         let split = self.split(&previous);
         let (generator_cfg, seed) = generator(self.data)?.ok_or_else(|| {
-            PhysicsError::Generator(format!(
+            EvidenceError::Generator(format!(
                 "{} has no run manifest to take the generator configuration from (train the physics estimator on a \
                  `dynforge generate` directory, or use --model transformer)",
                 self.data.display()
@@ -408,11 +318,11 @@ impl Session<'_> {
             Some(p) => p,
             None => {
                 observer
-                    .message(&format!("fitting the generator's parameter prior to {} robots", physics::PRIOR_ROBOTS));
-                physics::generator_prior(&generator_cfg, seed)?
+                    .message(&format!("fitting the generator's parameter prior to {} robots", evidence::PRIOR_ROBOTS));
+                evidence::generator_prior(&generator_cfg, seed)?
             }
         };
-        let (set, skipped) = physics::load_or_build(self.data, &spec, &prior, |k, n| {
+        let (set, skipped) = PhysicsSet::load_or_build(self.data, &spec, &prior, |k, n| {
             observer.preprocessing("physics", k, n);
             !self.stop.load(Ordering::Relaxed)
         })?;
@@ -431,7 +341,31 @@ impl Session<'_> {
         };
         let source =
             PhysicsSource { generator: generator_cfg, seed: draw_seed(seed, Draw::Synthetic), examples: record };
-        let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).map_err(SessionError::Setup)?;
+        let mut examples = PhysicsExamples::new(&set, prior, split, source)?;
+        let checkpoint = self.physics_checkpoint(previous, &examples, &spec, split, record, observer)?;
+        observer.message(&format!(
+            "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
+             validation windows",
+            checkpoint.model.describe(),
+            examples.real(),
+            self.recipe.generated_per_epoch,
+            examples.validation_len()
+        ));
+        let mut relay = Relay { observer, notes: None };
+        let summary = train(&mut examples, None, checkpoint, &self.training_run(resume), &mut relay)?;
+        self.finish(summary, Inputs::Physics(set), observer)
+    }
+
+    /// The checkpoint a physics run continues (saying what changed in its examples) or starts.
+    fn physics_checkpoint(
+        &self,
+        previous: Option<Checkpoint>,
+        examples: &PhysicsExamples,
+        spec: &WindowSpec,
+        split: (u64, f64),
+        record: ExampleRecord,
+        observer: &mut dyn SessionObserver,
+    ) -> Result<Checkpoint, SessionError> {
         let mut checkpoint = match previous {
             Some(c) => {
                 if let Some(was) = c.examples.filter(|was| *was != record) {
@@ -444,25 +378,14 @@ impl Session<'_> {
                 model.check().map_err(TrainError::from)?;
                 let robot = dataset_robot(self.data)?;
                 let std = examples.standardizer().clone();
-                let mut c = Checkpoint::new(NetworkConfig::Physics(model), &spec, joint_names(&robot), None, &std);
-                c.prior = Some(PriorRecord::new(&prior));
+                let mut c = Checkpoint::new(NetworkConfig::Physics(model), spec, joint_names(&robot), None, &std);
+                c.prior = Some(PriorRecord::new(examples.prior()));
                 self.stamp(&mut c, split);
                 c
             }
         };
         checkpoint.examples = Some(record);
-        observer.message(&format!(
-            "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
-             validation windows",
-            checkpoint.model.describe(),
-            examples.real(),
-            self.recipe.generated_per_epoch,
-            examples.validation_len()
-        ));
-        let mut relay = Relay { observer, notes: None };
-        let summary =
-            train(&mut examples, None, checkpoint, &self.recipe.train, self.out, resume, &mut relay, self.stop)?;
-        self.finish(summary, Inputs::Physics(set), observer)
+        Ok(checkpoint)
     }
 
     fn listing(&self, e: std::io::Error) -> SessionError {
@@ -494,7 +417,7 @@ fn joint_names(robot: &dynforge_robot::Model) -> Vec<String> {
     robot.joints().iter().map(|j| j.name.clone()).collect()
 }
 
-fn skip(observer: &mut dyn SessionObserver, skipped: &[String]) {
+fn skip(observer: &mut dyn SessionObserver, skipped: &[Skipped]) {
     for s in skipped {
         observer.message(&format!("warning: skipped {s}"));
     }

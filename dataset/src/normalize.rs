@@ -6,8 +6,8 @@
 
 use dynforge_proto::NUM_LABELS;
 
-use super::cache::CachedWindows;
-use super::split::{Split, split_of};
+use crate::cache::windows::CachedWindows;
+use crate::split::{Split, split_of};
 
 /// Per-column and per-label mean and standard deviation, and the kept columns.
 #[derive(Debug, Clone, PartialEq)]
@@ -151,7 +151,7 @@ impl Standardizer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::data::window::WindowSpec;
+    use crate::window::WindowSpec;
 
     fn windows() -> CachedWindows {
         // 4 windows of 2 steps x 3 columns: column 1 is constant, labels vary with the window.

@@ -3,13 +3,13 @@
 mod common;
 
 use common::write_shard;
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::window::WindowSpec;
+use dynforge_dataset::windows::{row_width, stats, windows};
+use dynforge_proto::job::Job;
 use dynforge_recording::read;
 use dynforge_robot::Data;
-use dynforge_robot::parameters::labels;
-use dynforge_trainer::data::dataset::{row_width, stats, windows};
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::Job;
+use dynforge_robot::parameters::labels_of;
 
 #[test]
 fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
@@ -17,7 +17,7 @@ fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
     let (path, robot) = write_shard(&Job { seed: 6, robot: 3, trajectory: 2 }, dir.path());
     let p = read(&path, None).unwrap();
     assert_eq!(p.model, robot.model, "the robot comes from /robot_description");
-    assert_eq!(p.labels.unwrap(), labels(&robot.model).unwrap());
+    assert_eq!(p.labels.unwrap(), labels_of(&robot.model).unwrap());
     assert_eq!(p.robot, Some(3));
     let bag = dynforge_shard::read(&path).unwrap();
     assert_eq!(p.trajectory.len(), bag.joint_states.len(), "a 1 kHz shard is already on the grid");

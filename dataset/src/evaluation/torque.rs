@@ -19,13 +19,13 @@ pub struct TorqueRow {
 }
 
 impl TorqueRow {
-    pub(crate) fn new(parameters: &str, e: &TorqueError) -> Self {
+    pub fn new(parameters: &str, e: &TorqueError) -> Self {
         TorqueRow { parameters: parameters.into(), per_joint: e.per_joint(), overall: e.overall() }
     }
 }
 
 /// Markdown table of torque rows.
-pub(crate) fn table(rows: &[TorqueRow]) -> String {
+pub fn table(rows: &[TorqueRow]) -> String {
     let joints = rows.first().map_or(0, |r| r.per_joint.len());
     let mut out = format!(
         "| parameters |{} overall |\n|---|{}---:|\n",

@@ -1,11 +1,29 @@
-//! The generator's configuration: the fixed kinematics and the ranges robots are drawn from.
+//! The generator's configuration: the fixed kinematics and the ranges robots are drawn from. A contract: it is part
+//! of every run manifest, and the same configuration, seed and [`GENERATOR_VERSION`] give the same robots.
 //!
 //! Loadable from TOML (every field optional, defaults below), so users can widen or narrow the distribution to
-//! bracket their own robot.
+//! bracket their own robot. The generator itself (geometry to inertia) is `dynforge_robot::generator`.
 
 use serde::{Deserialize, Serialize};
 
-use super::section::SectionKind;
+/// Version of the generation procedure, recorded with datasets: bump it whenever the same (seed, id) would give a
+/// different robot.
+pub const GENERATOR_VERSION: u32 = 1;
+
+/// Link cross-section shapes. `D` is the outer diameter (circle, tube) or the width across flats (square, hexagon).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SectionKind {
+    Solid,
+    Tube,
+    Square,
+    Hexagon,
+}
+
+impl SectionKind {
+    pub const ALL: [SectionKind; 4] =
+        [SectionKind::Solid, SectionKind::Tube, SectionKind::Square, SectionKind::Hexagon];
+}
 
 /// A closed range `[lo, hi]` drawn uniformly.
 pub type Range = [f64; 2];

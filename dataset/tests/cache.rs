@@ -4,10 +4,10 @@
 mod common;
 
 use common::write_shard;
-use dynforge_trainer::data::cache::{CachedWindows, cache_path, load_or_build};
-use dynforge_trainer::data::features::JacobianFeatures;
-use dynforge_trainer::data::window::WindowSpec;
-use dynforge_worker::job::Job;
+use dynforge_dataset::cache::windows::{CachedWindows, cache_path};
+use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::window::WindowSpec;
+use dynforge_proto::job::Job;
 
 /// A run directory with `trajectories` shards of robot 1 of seed 5, a manifest and a ledger (the cache key reads
 /// both as bytes); the default window geometry and the robot's features.
@@ -26,24 +26,25 @@ fn cache_hits_misses_and_rebuilds() {
     let dir = tempfile::tempdir().unwrap();
     let (spec, features) = run_dir(dir.path(), 2);
 
-    let (built, skipped) = load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
+    let (built, skipped) = CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
     assert!(!built.hit && skipped.is_empty());
     assert!(built.count() >= 2);
     assert_eq!(built.data.len(), built.count() * spec.len * built.width);
     assert!(built.robots.iter().all(|&r| r == 1));
-    let (again, _) = load_or_build(dir.path(), &spec, &features, |_, _| panic!("a hit reads no shard")).unwrap();
+    let (again, _) =
+        CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| panic!("a hit reads no shard")).unwrap();
     assert!(again.hit);
     assert_eq!(CachedEq(&again), CachedEq(&built));
 
     // Ledger lines in another order are the same dataset; an extra record is not.
     std::fs::write(dir.path().join("ledger.tsv"), "a\nb\n").unwrap();
-    assert!(load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
+    assert!(CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
     std::fs::write(dir.path().join("ledger.tsv"), "a\nb\nc\n").unwrap();
-    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
+    assert!(!CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 
     // Another geometry misses.
     let other = WindowSpec { len: 32, stride: 64, ssr: 16 };
-    let (w, _) = load_or_build(dir.path(), &other, &features, |_, _| true).unwrap();
+    let (w, _) = CachedWindows::load_or_build(dir.path(), &other, &features, |_, _| true).unwrap();
     assert!(!w.hit && w.count() > built.count());
 
     // A damaged cache file fails its checksum and is rebuilt to the same content.
@@ -52,17 +53,17 @@ fn cache_hits_misses_and_rebuilds() {
     let mid = bytes.len() / 2;
     bytes[mid] ^= 1;
     std::fs::write(&path, &bytes).unwrap();
-    let (rebuilt, _) = load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
+    let (rebuilt, _) = CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
     assert!(!rebuilt.hit);
     assert_eq!(CachedEq(&rebuilt), CachedEq(&built));
     // A truncated file (a crash before the atomic rename cannot produce one, a disk error can) is rebuilt too.
     std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
-    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
+    assert!(!CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 }
 
 /// Equality of the cached content, ignoring whether it came from disk.
 #[derive(Debug)]
-struct CachedEq<'a>(&'a dynforge_trainer::data::cache::CachedWindows);
+struct CachedEq<'a>(&'a dynforge_dataset::cache::windows::CachedWindows);
 
 impl PartialEq for CachedEq<'_> {
     fn eq(&self, o: &Self) -> bool {
@@ -92,10 +93,10 @@ fn shards_read_on_all_cores_join_in_path_order() {
         hit: false,
     };
     let mut together = empty();
-    let added = together.add_shards(&paths, &features, |_, _| true);
+    let added = together.add_shards(&paths, &features);
     let mut one_by_one = empty();
     for p in &paths {
-        one_by_one.add_shards(std::slice::from_ref(p), &features, |_, _| true);
+        one_by_one.add_shards(std::slice::from_ref(p), &features);
     }
     assert_eq!(CachedEq(&together), CachedEq(&one_by_one));
     // Each shard's reported range holds its own robot's windows, and the robots follow the (sorted) file names.
@@ -111,7 +112,10 @@ fn shards_read_on_all_cores_join_in_path_order() {
 fn an_interrupted_build_is_an_error_and_caches_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let (spec, features) = run_dir(dir.path(), 1);
-    let e = load_or_build(dir.path(), &spec, &features, |_, _| false).expect_err("stopped");
+    let e = CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| false).expect_err("stopped");
     assert!(e.to_string().contains("interrupted while reading the shards; nothing was cached"), "{e}");
-    assert!(!load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit, "a partial cache was written");
+    assert!(
+        !CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit,
+        "a partial cache was written"
+    );
 }

@@ -4,10 +4,11 @@
 use dynforge_proto::NUM_LABELS;
 
 use super::Examples;
-use crate::data::cache::CachedWindows;
-use crate::data::features::JacobianFeatures;
-use crate::data::normalize::Standardizer;
-use crate::data::split::{Split, split_of};
+use crate::cache::Skipped;
+use crate::cache::windows::CachedWindows;
+use crate::features::JacobianFeatures;
+use crate::normalize::Standardizer;
+use crate::split::{Split, split_of};
 
 /// Windows split and standardised, ready for batches.
 pub struct Corpus {
@@ -26,9 +27,9 @@ impl Corpus {
         features: &JacobianFeatures,
         split_seed: u64,
         validation_fraction: f64,
-    ) -> Vec<String> {
+    ) -> Vec<Skipped> {
         let mut skipped = Vec::new();
-        for added in self.windows.add_shards(paths, features, |_, _| true) {
+        for added in self.windows.add_shards(paths, features) {
             match added {
                 Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
                     Split::Train => self.train.extend(new),

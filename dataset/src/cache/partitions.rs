@@ -12,10 +12,36 @@ use std::path::{Path, PathBuf};
 
 use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_atomic};
 
-use super::cache::{self, CacheKey, CachedWindows, dataset_hash, dataset_hash_of};
-use super::physics::{self, PhysicsSet};
+use super::evidence::PhysicsSet;
+use super::windows::CachedWindows;
+use super::{CacheKey, Cached, dataset_hash, dataset_hash_of};
 
-const KINDS: [&str; 2] = [cache::KIND, physics::KIND];
+const KINDS: [&str; 2] = [CachedWindows::KIND, PhysicsSet::KIND];
+
+/// Why the caches of a run's partitions cannot be merged.
+#[derive(Debug, thiserror::Error)]
+pub enum PartitionsError {
+    #[error(transparent)]
+    Read(#[from] dynforge_recording::ReadError),
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error(
+        "{dir} has no current {kind} cache {preprocessing:016x}, which another partition has, and shards were pruned: \
+         run `dynforge dataset prepare` with the same settings on every partition"
+    )]
+    Missing { dir: String, kind: &'static str, preprocessing: u64 },
+    #[error("shards were pruned, but the partitions have no current cache")]
+    NoCommonCache,
+    #[error("{0}: not an intact {1} cache")]
+    Damaged(String, &'static str),
+    #[error("combining the {kind} caches: {source}")]
+    Combine { kind: &'static str, source: super::CombineError },
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> PartitionsError {
+    let path = path.display().to_string();
+    move |source| PartitionsError::Io { path: path.clone(), source }
+}
 
 /// The items of several partitions' lists (each the robot of every item), in merged order: (partition, items).
 pub(crate) fn merged_order(parts: &[&[u64]]) -> Vec<(usize, Range<usize>)> {
@@ -41,10 +67,10 @@ pub struct Plan {
 
 /// The plan for `parts`. An error when a partition lacks a cache another has while shards were pruned (the merged
 /// directory would hold the pruned shards' data for no settings), or when pruned shards are in no current cache.
-pub fn plan(parts: &[PathBuf]) -> Result<Plan, String> {
+pub fn plan(parts: &[PathBuf]) -> Result<Plan, PartitionsError> {
     let mut current: Vec<BTreeSet<CacheKey>> = Vec::new();
     for dir in parts {
-        let dataset = dataset_hash_of(dir).map_err(|e| e.to_string())?;
+        let dataset = dataset_hash_of(dir)?;
         let names = std::fs::read_dir(dir.join(CACHE))
             .map(|l| l.filter_map(Result::ok).map(|e| e.file_name().to_string_lossy().to_string()).collect())
             .unwrap_or_else(|_| Vec::new());
@@ -60,23 +86,18 @@ pub fn plan(parts: &[PathBuf]) -> Result<Plan, String> {
     let all: BTreeSet<CacheKey> = current.iter().flatten().copied().collect();
     let mut any_pruned = false;
     for dir in parts {
-        any_pruned |= !read_pruned(dir).map_err(|e| format!("{}: {e}", dir.join(PRUNED).display()))?.is_empty();
+        any_pruned |= !read_pruned(dir).map_err(io(&dir.join(PRUNED)))?.is_empty();
     }
     let common: Vec<CacheKey> = all.iter().copied().filter(|k| current.iter().all(|c| c.contains(k))).collect();
     if any_pruned {
         if let Some((dir, key)) =
             all.iter().find_map(|k| parts.iter().zip(&current).find(|(_, c)| !c.contains(k)).map(|(d, _)| (d, k)))
         {
-            return Err(format!(
-                "{} has no current {} cache {:016x}, which another partition has, and shards were pruned: run \
-                 `dynforge dataset prepare` with the same settings on every partition",
-                dir.display(),
-                key.kind,
-                key.preprocessing
-            ));
+            let dir = dir.display().to_string();
+            return Err(PartitionsError::Missing { dir, kind: key.kind, preprocessing: key.preprocessing });
         }
         if common.is_empty() {
-            return Err("shards were pruned, but the partitions have no current cache".into());
+            return Err(PartitionsError::NoCommonCache);
         }
     }
     Ok(Plan { keys: common })
@@ -94,38 +115,39 @@ impl Plan {
 
     /// Writes into the merged directory `out` (its ledger written, its manifest to be `manifest`) the combination
     /// of each cache of the plan made for `parts`; returns the file names written.
-    pub fn combine(&self, parts: &[PathBuf], out: &Path, manifest: &[u8]) -> Result<Vec<String>, String> {
-        let ledger = std::fs::read(out.join(LEDGER)).map_err(|e| format!("{}: {e}", out.join(LEDGER).display()))?;
+    pub fn combine(&self, parts: &[PathBuf], out: &Path, manifest: &[u8]) -> Result<Vec<String>, PartitionsError> {
+        let ledger = std::fs::read(out.join(LEDGER)).map_err(io(&out.join(LEDGER)))?;
         let merged_dataset = dataset_hash(manifest, &ledger);
-        std::fs::create_dir_all(out.join(CACHE)).map_err(|e| format!("{}: {e}", out.join(CACHE).display()))?;
+        std::fs::create_dir_all(out.join(CACHE)).map_err(io(&out.join(CACHE)))?;
         let mut written = Vec::new();
         for &key in &self.keys {
             let mut files = Vec::new();
             for dir in parts {
-                let path = key.path(dir).map_err(|e| e.to_string())?;
-                files.push((std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?, path));
+                let path = key.path(dir)?;
+                files.push((std::fs::read(&path).map_err(io(&path))?, path));
             }
-            let bytes = if key.kind == physics::KIND {
-                PhysicsSet::combine(&decode_each(&files, key.kind, PhysicsSet::decode)?).encode()
-            } else {
-                cache::encode(&CachedWindows::combine(&decode_each(&files, key.kind, cache::decode)?)?)
+            let bytes = match key.kind {
+                PhysicsSet::KIND => combine_files::<PhysicsSet>(&files)?,
+                _ => combine_files::<CachedWindows>(&files)?,
             };
             let name = key.file_name(merged_dataset);
             let path = out.join(CACHE).join(&name);
-            write_atomic(&path, &bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+            write_atomic(&path, &bytes).map_err(io(&path))?;
             written.push(name);
         }
         Ok(written)
     }
 }
 
-/// Each of `files` (bytes, path) decoded by `decode`; an error names the first that is not an intact `kind` cache.
-fn decode_each<T>(
-    files: &[(Vec<u8>, PathBuf)],
-    kind: &str,
-    decode: impl Fn(&[u8]) -> Option<T>,
-) -> Result<Vec<T>, String> {
-    files.iter().map(|(b, p)| decode(b).ok_or_else(|| format!("{}: not an intact {kind} cache", p.display()))).collect()
+/// The cache files `files` (bytes, path) of kind `C` combined, encoded; an error names the first that is not an
+/// intact cache of the kind.
+fn combine_files<C: Cached>(files: &[(Vec<u8>, PathBuf)]) -> Result<Vec<u8>, PartitionsError> {
+    let parts = files
+        .iter()
+        .map(|(b, p)| C::decode(b).ok_or_else(|| PartitionsError::Damaged(p.display().to_string(), C::KIND)))
+        .collect::<Result<Vec<C>, _>>()?;
+    let combined = C::combine(&parts).map_err(|source| PartitionsError::Combine { kind: C::KIND, source })?;
+    Ok(combined.encode())
 }
 
 #[cfg(test)]

@@ -1,4 +1,5 @@
-//! R2 and RMSE per target, and their overall values.
+//! R2 and RMSE per target, and their overall values; and a training run's history per epoch (`metrics.csv`,
+//! `metrics.json`).
 //!
 //! Averaging, stated once: per-target R2 = 1 - SS_res / SS_tot over the evaluated windows (SS_tot about the
 //! evaluated windows' own mean, as scikit-learn's `r2_score`); overall R2 = the unweighted mean of the 38 per-target
@@ -7,7 +8,10 @@
 //! average; overall RMSE = sqrt of the mean of the 38 per-target mean squared errors. Per-target RMSE is also kept in
 //! physical units.
 
+use std::path::{Path, PathBuf};
+
 use dynforge_proto::NUM_LABELS;
+use dynforge_proto::run_dir::write_atomic;
 use serde::{Deserialize, Serialize};
 
 /// Scores of one target.
@@ -58,6 +62,81 @@ pub fn score(predicted: &[[f64; NUM_LABELS]], truth: &[[f64; NUM_LABELS]], scale
     let r2 = targets.iter().map(|t| t.r2).sum::<f64>() / NUM_LABELS as f64;
     let rmse = (targets.iter().map(|t| t.rmse * t.rmse).sum::<f64>() / NUM_LABELS as f64).sqrt();
     Scores { targets, r2, rmse, count: truth.len() }
+}
+
+/// JSON has no infinities or NaN (serde_json writes them as null): read null back as NaN.
+fn nullable<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// One epoch's figures, as written to metrics.csv / metrics.json.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpochMetrics {
+    pub epoch: usize,
+    pub step: usize,
+    pub lr: f64,
+    pub train_loss: f64,
+    pub validation_loss: f64,
+    /// -inf when a target is constant over the validation windows (a single validation robot).
+    #[serde(deserialize_with = "nullable")]
+    pub validation_r2: f64,
+    pub validation_rmse: f64,
+    pub windows_per_second: f64,
+    /// Wall-clock seconds of this epoch: preparing its examples and its training steps (not validation).
+    pub seconds: f64,
+    /// Process CPU seconds (user + system, all threads) of the same span: the cost measure for comparing designs on
+    /// accuracy per CPU-hour.
+    #[serde(default)]
+    pub cpu_seconds: f64,
+}
+
+/// The epoch's line of a training log.
+impl std::fmt::Display for EpochMetrics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "epoch {:>3}: train loss {:.4}, validation loss {:.4}, R2 {:.4}, RMSE {:.4}, {:.0} examples/s, {:.1} s ({:.1} \
+             CPU s)",
+            self.epoch,
+            self.train_loss,
+            self.validation_loss,
+            self.validation_r2,
+            self.validation_rmse,
+            self.windows_per_second,
+            self.seconds,
+            self.cpu_seconds
+        )
+    }
+}
+
+/// Writes a run's history into its directory `dir` as `metrics.csv` and `metrics.json` (atomically); on failure the
+/// file and the error.
+pub fn write_history(dir: &Path, history: &[EpochMetrics]) -> Result<(), (PathBuf, std::io::Error)> {
+    let mut csv = String::from(
+        "epoch,step,lr,train_loss,validation_loss,validation_r2,validation_rmse,windows_per_second,seconds,cpu_seconds\n",
+    );
+    for m in history {
+        csv.push_str(&format!(
+            "{},{},{:.6e},{:.6},{:.6},{:.6},{:.6},{:.1},{:.2},{:.2}\n",
+            m.epoch,
+            m.step,
+            m.lr,
+            m.train_loss,
+            m.validation_loss,
+            m.validation_r2,
+            m.validation_rmse,
+            m.windows_per_second,
+            m.seconds,
+            m.cpu_seconds
+        ));
+    }
+    let at = |name: &str| {
+        let path = dir.join(name);
+        move |e: std::io::Error| (path, e)
+    };
+    write_atomic(&dir.join("metrics.csv"), csv.as_bytes()).map_err(at("metrics.csv"))?;
+    let json = serde_json::to_vec_pretty(history).map_err(|e| at("metrics.json")(std::io::Error::other(e)))?;
+    write_atomic(&dir.join("metrics.json"), &json).map_err(at("metrics.json"))
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! Helpers shared by the trainer's integration tests.
+//! Helpers shared by the integration tests of the dataset and the trainer (the trainer's include this file).
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};

@@ -12,17 +12,17 @@ use std::path::{Path, PathBuf};
 
 use dynforge_identify::{NormalEquations, Prior, TorqueError, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
+use dynforge_recording::dataset::{list_shards, shard_dir};
+use dynforge_recording::{Recording, read};
 use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
-use super::report::group_r2;
+use super::recording::{normal_equations, physical_parameters, recording_error};
+use super::tables::group_r2;
 use super::torque::{TorqueRow, table};
-use crate::data::split::{Split, split_of};
-use crate::inference::{InferenceError, Predictor, normal_equations, physical_parameters, recording_error};
+use super::{Estimator, EvaluationError};
 use crate::metrics::{Scores, score};
 use crate::parallel::map_in_order;
-use dynforge_recording::dataset::{list_shards, shard_dir};
-use dynforge_recording::{Recording, read};
 
 /// What the identification check reports.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -98,32 +98,30 @@ const ROWS: [&str; 6] =
 /// `errors` holds the network's per-robot estimate minus truth for validation robots: the hybrid's prior spread for
 /// a robot is their RMS over the other robots, so no robot informs its own prior.
 pub(crate) fn check(
-    predictor: &Predictor,
-    dir: &Path,
+    estimator: &impl Estimator,
     data: &Path,
     max_robots: usize,
     training: &Prior,
     errors: &BTreeMap<u64, [f64; NUM_LABELS]>,
     progress: &mut impl FnMut(&str, usize, usize),
-) -> Result<Option<IdentificationCheck>, InferenceError> {
-    let c = &predictor.checkpoint;
+) -> Result<Option<IdentificationCheck>, EvaluationError> {
     let mut by_robot: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
     for p in list_shards(&shard_dir(data)).unwrap_or_default() {
         let robot = p.file_name().and_then(|n| n.to_str()).and_then(dynforge_proto::shard::robot_of_file_name);
-        if let Some(r) = robot.filter(|&r| split_of(c.split_seed, r, c.validation_fraction) == Split::Validation) {
+        if let Some(r) = robot.filter(|&r| estimator.validates(r)) {
             by_robot.entry(r).or_default().push(p);
         }
     }
     let (ids, robots): (Vec<u64>, Vec<Vec<PathBuf>>) =
         by_robot.into_iter().filter(|(_, v)| v.len() >= 2).take(max_robots).unzip();
-    let s = c.standardizer();
+    let (_, label_std) = estimator.label_statistics();
     // The hybrid's prior spread for robot r: the network's RMS error over every other validation robot (leave one
     // out), or the training spread when too few others are known.
     let network_std = |r: u64| -> [f64; NUM_LABELS] {
         let others: Vec<&[f64; NUM_LABELS]> = errors.iter().filter(|(o, _)| **o != r).map(|(_, e)| e).collect();
         std::array::from_fn(|k| {
             let rms = (others.iter().map(|e| e[k] * e[k]).sum::<f64>() / others.len().max(1) as f64).sqrt();
-            if others.len() >= MIN_OTHER_ROBOTS { rms.max(1e-6 * s.label_std[k]) } else { training.std()[k] }
+            if others.len() >= MIN_OTHER_ROBOTS { rms.max(1e-6 * label_std[k]) } else { training.std()[k] }
         })
     };
     let robots: Vec<(u64, Vec<PathBuf>)> = ids.into_iter().zip(robots).collect();
@@ -131,7 +129,7 @@ pub(crate) fn check(
     let mut results = Vec::new();
     for (k, group) in robots.chunks(chunk).enumerate() {
         progress("identification", k * chunk, robots.len());
-        let done = map_in_order(group, |(r, paths)| one_robot(predictor, dir, paths, training, &network_std(*r)));
+        let done = map_in_order(group, |(r, paths)| one_robot(estimator, paths, training, &network_std(*r)));
         for r in done {
             results.extend(r?);
         }
@@ -142,7 +140,7 @@ pub(crate) fn check(
     }
     let truth: Vec<_> = results.iter().map(|r| r.truth).collect();
     let scores = |f: fn(&RobotResult) -> [f64; NUM_LABELS]| {
-        score(&results.iter().map(f).collect::<Vec<_>>(), &truth, &s.label_std)
+        score(&results.iter().map(f).collect::<Vec<_>>(), &truth, &label_std)
     };
     let mut errors = vec![TorqueError::default(); ROWS.len()];
     for r in &results {
@@ -168,12 +166,11 @@ pub(crate) fn check(
 /// Identifies one robot from the first half of its recordings (sorted by name, i.e. by trajectory) and scores it on
 /// the rest; `None` when too few recordings are readable and long enough.
 fn one_robot(
-    predictor: &Predictor,
-    dir: &Path,
+    estimator: &impl Estimator,
     paths: &[PathBuf],
     training: &Prior,
     network_std: &[f64; NUM_LABELS],
-) -> Result<Option<RobotResult>, InferenceError> {
+) -> Result<Option<RobotResult>, EvaluationError> {
     let preps: Vec<_> = paths.iter().filter_map(|p| read(p, None).ok()).filter(|p| p.labels.is_some()).collect();
     if preps.len() < 2 {
         return Ok(None);
@@ -187,11 +184,11 @@ fn one_robot(
         fit_ne.merge(&normal_equations(p)?);
     }
     let long: Vec<&Recording> =
-        fit.iter().filter(|p| !predictor.checkpoint.window_spec().windows(p.trajectory.len()).is_empty()).collect();
+        fit.iter().filter(|p| !estimator.window_spec().windows(p.trajectory.len()).is_empty()).collect();
     if long.is_empty() || fit_ne.rows() == 0 {
         return Ok(None);
     }
-    let network = predictor.estimate(dir, &long)?.labels;
+    let network = estimator.estimate(&long).map_err(EvaluationError::Estimator)?;
     let mut held_out = NormalEquations::new(template.dof());
     for p in held {
         held_out.merge(&normal_equations(p)?);

@@ -3,15 +3,61 @@
 //! shards of two configurations. The one allowed change is more robots: jobs, their ids and partitions are per
 //! robot, so the shards already written are exactly those a run of the larger size would write.
 
+use std::fmt;
 use std::path::Path;
+use std::str::FromStr;
 
-use dynforge_robot::generator::{GENERATOR_VERSION, GeneratorConfig};
-use dynforge_worker::simulate::SimConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::plan::Partition;
+use crate::generator::{GENERATOR_VERSION, GeneratorConfig};
+use crate::sim::SimConfig;
 
-pub const FILE: &str = dynforge_proto::run_dir::MANIFEST;
+pub const FILE: &str = crate::run_dir::MANIFEST;
+
+/// `i/n`: a host runs the robots `r` with `r % n == i`. The union of `0/n .. (n-1)/n` is the whole run, and
+/// partitions never share a robot (so they never share a shard).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Partition {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Partition {
+    pub const WHOLE: Partition = Partition { index: 0, count: 1 };
+
+    pub fn contains(&self, robot: u64) -> bool {
+        robot % self.count as u64 == self.index as u64
+    }
+}
+
+impl fmt::Display for Partition {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// A partition flag that is not `i/n` with `0 <= i < n`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("partition '{text}': {problem}")]
+pub struct PartitionError {
+    pub text: String,
+    pub problem: String,
+}
+
+impl FromStr for Partition {
+    type Err = PartitionError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = |problem: String| PartitionError { text: s.to_string(), problem };
+        let (i, n) = s.split_once('/').ok_or_else(|| bad("is not of the form i/n".into()))?;
+        let index: u32 = i.trim().parse().map_err(|_| bad(format!("'{i}' is not a number")))?;
+        let count: u32 = n.trim().parse().map_err(|_| bad(format!("'{n}' is not a number")))?;
+        if count == 0 || index >= count {
+            return Err(bad("i must be in 0..n (n > 0)".into()));
+        }
+        Ok(Partition { index, count })
+    }
+}
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -51,7 +97,7 @@ impl Manifest {
         Manifest {
             dynforge_version: env!("CARGO_PKG_VERSION").to_string(),
             generator_version: GENERATOR_VERSION,
-            shard_version: dynforge_proto::shard::SHARD_VERSION,
+            shard_version: crate::shard::SHARD_VERSION,
             seed,
             robots,
             trajectories,
@@ -97,7 +143,7 @@ impl Manifest {
             }
             grown = Some(existing.robots);
         }
-        dynforge_proto::run_dir::write_atomic(&path, self.to_toml().as_bytes())
+        crate::run_dir::write_atomic(&path, self.to_toml().as_bytes())
             .map_err(|e| ManifestError::Io { path: shown, message: e.to_string() })?;
         Ok(grown)
     }

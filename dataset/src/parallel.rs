@@ -1,9 +1,9 @@
-//! Work spread over the cores. burn's CPU backend and the shard reader each use one core per call, so the trainer
+//! Work spread over the cores. burn's CPU backend and the shard reader each use one core per call, so dynforge
 //! runs independent calls side by side itself.
 
 /// `f` of every item, in item order, computed on one thread per core (thread t takes items t, t + n, ...). The
 /// result does not depend on the number of cores.
-pub(crate) fn map_in_order<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
+pub fn map_in_order<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(items.len()).max(1);
     let f = &f;
     let mut per_thread: Vec<std::vec::IntoIter<R>> = std::thread::scope(|s| {

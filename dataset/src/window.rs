@@ -23,6 +23,31 @@ impl Default for WindowSpec {
     }
 }
 
+/// A window geometry that is not `LEN:STRIDE:SSR` of three positive numbers.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("'{0}': expected three positive numbers LEN:STRIDE:SSR")]
+pub struct WindowSpecError(String);
+
+/// `LEN:STRIDE:SSR`, as the command line takes it (`64:64:16`).
+impl std::str::FromStr for WindowSpec {
+    type Err = WindowSpecError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let parts: Vec<usize> =
+            s.split(':').map(str::parse).collect::<Result<_, _>>().map_err(|_| WindowSpecError(s.into()))?;
+        match parts[..] {
+            [len, stride, ssr] if len > 0 && stride > 0 && ssr > 0 => Ok(WindowSpec { len, stride, ssr }),
+            _ => Err(WindowSpecError(s.into())),
+        }
+    }
+}
+
+impl std::fmt::Display for WindowSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}:{}:{}", self.len, self.stride, self.ssr)
+    }
+}
+
 /// One window: source sample `i` of the window is `offset + (start + i) * stride`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Window {

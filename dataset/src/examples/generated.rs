@@ -8,26 +8,24 @@
 //! the excitation of a random training window, recording or robot; the real training examples join them, and the
 //! validation windows are the dataset's (the paper's protocol).
 
-use dynforge_identify::{Evidence, ParameterPrior};
+use dynforge_identify::{Evidence, IdentifyError, ParameterPrior};
 use dynforge_proto::NUM_LABELS;
 use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_robot::parameters::{dynamic_parameters, labels};
+use dynforge_robot::parameters::{dynamic_parameters, labels_of};
 use dynforge_robot::rng::Rng;
 
-use super::Examples;
-use crate::checkpoint::ExampleRecord;
-use crate::data::normalize::Standardizer;
-use crate::data::physics::{
-    Draw, EvidenceList, LABEL_COLUMNS, NOISE_FLOOR, PhysicsSet, draw_seed, feature_width, features,
-};
-use crate::data::split::{Split, split_of};
+use super::{ExampleRecord, Examples};
+use crate::cache::evidence::PhysicsSet;
+use crate::evidence::{Draw, LABEL_COLUMNS, NOISE_FLOOR, draw_seed, feature_width, features};
+use crate::normalize::Standardizer;
 use crate::parallel::map_in_order;
+use crate::split::{Split, split_of};
 
 /// How the physics examples are made.
 #[derive(Debug, Clone)]
 pub struct PhysicsSource {
     pub generator: GeneratorConfig,
-    /// Seed of the generated robots (apart from the dataset's: `crate::data::physics::draw_seed`).
+    /// Seed of the generated robots (apart from the dataset's: [`draw_seed`]).
     pub seed: u64,
     /// How many generated robots per epoch, whether the dataset's own training examples join them (without them
     /// the network cannot memorise the real examples, and the dataset's simulations serve only as excitations and
@@ -40,6 +38,15 @@ pub struct PhysicsSource {
 /// The torque noise of noisy generated examples, relative to the torque RMS: from a good torque sensor to a motor
 /// current read through a gearbox.
 pub const NOISY_LEVELS: (f64, f64) = (1e-4, 1e-2);
+
+/// Why the physics examples of a dataset cannot be made.
+#[derive(Debug, thiserror::Error)]
+pub enum ExamplesError {
+    #[error(transparent)]
+    Identify(#[from] IdentifyError),
+    #[error("no training windows to take excitations from (more robots, or another validation fraction)")]
+    NoTrainingWindows,
+}
 
 /// Generated examples the input statistics are fitted to, besides the real ones.
 const CALIBRATION: usize = 4096;
@@ -64,21 +71,6 @@ pub struct PhysicsExamples {
     drawn_y: Vec<[f64; NUM_LABELS]>,
 }
 
-/// Evidence summed per robot, for the robots `keep` accepts: (robot, labels, evidence).
-pub fn per_robot(list: &EvidenceList, keep: impl Fn(u64) -> bool) -> Vec<(u64, [f64; NUM_LABELS], Evidence)> {
-    let mut out: std::collections::BTreeMap<u64, ([f64; NUM_LABELS], Evidence)> = Default::default();
-    for i in (0..list.len()).filter(|&i| keep(list.robots[i])) {
-        let e = list.get(i);
-        match out.get_mut(&list.robots[i]) {
-            Some((_, sum)) => sum.add(&e),
-            None => {
-                out.insert(list.robots[i], (list.labels[i], e));
-            }
-        }
-    }
-    out.into_iter().map(|(r, (y, e))| (r, y, e)).collect()
-}
-
 impl PhysicsExamples {
     /// The examples of `set`, split by robot (`split_seed`, `fraction`). Label statistics come from the generator
     /// (a calibration draw of its robots: what the network mostly sees, and well defined however few robots the
@@ -89,7 +81,7 @@ impl PhysicsExamples {
         prior: ParameterPrior,
         split: (u64, f64),
         source: PhysicsSource,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, ExamplesError> {
         let train = |r: u64| split_of(split.0, r, split.1) == Split::Train;
         let train_windows: Vec<usize> = (0..set.windows.len()).filter(|&i| train(set.windows.robots[i])).collect();
         let validation: Vec<usize> = (0..set.windows.len()).filter(|&i| !train(set.windows.robots[i])).collect();
@@ -97,7 +89,7 @@ impl PhysicsExamples {
         let generated: Vec<[f64; NUM_LABELS]> = map_in_order(&ids, |&id| {
             generate(&source.generator, draw_seed(source.seed, Draw::Prior), id)
                 .ok()
-                .and_then(|r| labels(&r.model).ok())
+                .and_then(|r| labels_of(&r.model).ok())
         })
         .into_iter()
         .flatten()
@@ -108,12 +100,11 @@ impl PhysicsExamples {
         evidence.extend(train_windows.iter().map(|&i| (set.windows.get(i), set.windows.labels[i])));
         let recordings: Vec<usize> = (0..set.recordings.len()).filter(|&i| train(set.recordings.robots[i])).collect();
         evidence.extend(recordings.iter().map(|&i| (set.recordings.get(i), set.recordings.labels[i])));
-        evidence.extend(per_robot(&set.recordings, train).into_iter().map(|(_, y, e)| (e, y)));
+        evidence.extend(set.recordings.per_robot(train).into_iter().map(|(_, y, e)| (e, y)));
         let raw = map_in_order(&evidence, |(e, _)| features(&prior, e, &lm, &ls));
-        let raw: Vec<Vec<f32>> = raw.into_iter().collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+        let raw: Vec<Vec<f32>> = raw.into_iter().collect::<Result<_, _>>()?;
         let validation_raw = map_in_order(&validation, |&i| features(&prior, &set.windows.get(i), &lm, &ls));
-        let validation_raw: Vec<Vec<f32>> =
-            validation_raw.into_iter().collect::<Result<_, _>>().map_err(|e| e.to_string())?;
+        let validation_raw: Vec<Vec<f32>> = validation_raw.into_iter().collect::<Result<_, _>>()?;
         let mut robots: std::collections::BTreeMap<u64, Vec<usize>> = Default::default();
         for (k, &i) in recordings.iter().enumerate() {
             robots.entry(set.recordings.robots[i]).or_default().push(k);
@@ -133,9 +124,7 @@ impl PhysicsExamples {
             drawn_y: Vec::new(),
         };
         if out.windows.is_empty() || out.robots.is_empty() {
-            return Err(
-                "no training windows to take excitations from (more robots, or another validation fraction)".into()
-            );
+            return Err(ExamplesError::NoTrainingWindows);
         }
         // Input statistics over the real examples and a calibration draw of generated ones (a stream of its own),
         // since generated examples are most of what the network sees.
@@ -208,7 +197,7 @@ impl PhysicsExamples {
         }
         let s = &self.standardizer;
         let f = features(&self.prior, &e, &s.label_mean, &s.label_std).ok()?;
-        Some((f, labels(&robot).ok()?))
+        Some((f, labels_of(&robot).ok()?))
     }
 }
 

@@ -1,6 +1,7 @@
 //! The caches' file layout: an 8-byte magic, little-endian numbers, and the content hash of everything before it, so
 //! a damaged or truncated cache is detected and rebuilt instead of read.
 
+use dynforge_proto::NUM_LABELS;
 use dynforge_shard::content_hash;
 
 pub(crate) struct Encoder(Vec<u8>);
@@ -77,6 +78,12 @@ impl<'a> Decoder<'a> {
 
     pub(crate) fn f64s(&mut self, n: usize) -> Option<Vec<f64>> {
         self.values(n, f64::from_le_bytes)
+    }
+
+    /// `n` label vectors.
+    pub(crate) fn label_rows(&mut self, n: usize) -> Option<Vec<[f64; NUM_LABELS]>> {
+        let flat = self.f64s(n.checked_mul(NUM_LABELS)?)?;
+        Some(flat.chunks_exact(NUM_LABELS).map(|c| c.try_into().expect("rows of NUM_LABELS")).collect())
     }
 
     /// Whether everything was read.

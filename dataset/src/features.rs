@@ -79,6 +79,24 @@ impl JacobianFeatures {
         self.entries.len()
     }
 
+    /// The columns of a window's time step for `model`, one line per kind: q, qd, tau of each joint, then these
+    /// features.
+    pub fn describe(&self, model: &Model) -> String {
+        let joints: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
+        let mut out = format!(
+            "features per time step: {} = q, qd, tau of {} joints + {} Jacobian entries\n",
+            3 * joints.len() + self.len(),
+            joints.len(),
+            self.len()
+        );
+        for kind in ["q", "qd", "tau"] {
+            out.push_str(&format!("  {kind}: {}\n", joints.join(" ")));
+        }
+        let names: Vec<&str> = self.entries.iter().map(|e| e.name.as_str()).collect();
+        out.push_str(&format!("  jacobian: {}\n", names.join(" ")));
+        out
+    }
+
     pub fn is_empty(&self) -> bool {
         self.entries.is_empty()
     }

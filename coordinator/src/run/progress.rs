@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use dynforge_ipc::StatusMsg;
-use dynforge_worker::job::Job;
+use dynforge_proto::job::Job;
 
 use super::Run;
 use crate::ledger::{Entry, Status};

@@ -12,8 +12,8 @@ use dynforge_robot::{Data, Model};
 use dynforge_recording::dataset::list_shards;
 use dynforge_recording::{GRID_DT, ReadError, Recording, read};
 
-use super::features::JacobianFeatures;
-use super::window::WindowSpec;
+use crate::features::JacobianFeatures;
+use crate::window::WindowSpec;
 
 /// Width of a window row: q, qd, tau and the Jacobian features.
 pub fn row_width(model: &Model, features: &JacobianFeatures) -> usize {

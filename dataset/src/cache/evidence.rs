@@ -1,0 +1,242 @@
+//! The physics estimator's cache: the evidence of every window and every whole recording of a dataset
+//! (`crate::evidence`), with its labels and robot.
+
+use std::path::Path;
+
+use dynforge_identify::{Evidence, PAIRING_REVISION, ParameterPrior, packed_len};
+use dynforge_proto::NUM_LABELS;
+use dynforge_recording::{Recording, read};
+
+use super::codec::{Decoder, Encoder};
+use super::{CacheError, CacheKey, Cached, CombineError, Skipped};
+use crate::evidence::{NOISE_FLOOR, recording_evidence};
+use crate::window::WindowSpec;
+
+/// Pieces of evidence with their robot and labels, stored flat.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EvidenceList {
+    pub rank: usize,
+    pub robots: Vec<u64>,
+    pub labels: Vec<[f64; NUM_LABELS]>,
+    /// For windows: the index of their recording in the set's recordings.
+    pub recording: Vec<u64>,
+    h: Vec<f64>,
+    b: Vec<f64>,
+}
+
+impl EvidenceList {
+    fn new(rank: usize) -> Self {
+        EvidenceList { rank, ..Default::default() }
+    }
+
+    pub fn len(&self) -> usize {
+        self.robots.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.robots.is_empty()
+    }
+
+    fn push(&mut self, robot: u64, labels: [f64; NUM_LABELS], recording: u64, e: &Evidence) {
+        self.robots.push(robot);
+        self.labels.push(labels);
+        self.recording.push(recording);
+        self.h.extend(&e.h);
+        self.b.extend(&e.b);
+    }
+
+    /// Appends item `i` of `other`, as part of recording `recording`.
+    fn push_from(&mut self, other: &EvidenceList, i: usize, recording: u64) {
+        let (r, p) = (self.rank, packed_len(self.rank));
+        self.robots.push(other.robots[i]);
+        self.labels.push(other.labels[i]);
+        self.recording.push(recording);
+        self.h.extend(&other.h[i * p..(i + 1) * p]);
+        self.b.extend(&other.b[i * r..(i + 1) * r]);
+    }
+
+    /// Evidence `i`.
+    pub fn get(&self, i: usize) -> Evidence {
+        let (r, p) = (self.rank, packed_len(self.rank));
+        Evidence { rank: r, h: self.h[i * p..(i + 1) * p].to_vec(), b: self.b[i * r..(i + 1) * r].to_vec() }
+    }
+
+    /// The packed excitation `H` of evidence `i` alone.
+    pub fn excitation(&self, i: usize) -> &[f64] {
+        let p = packed_len(self.rank);
+        &self.h[i * p..(i + 1) * p]
+    }
+
+    /// Evidence summed per robot, for the robots `keep` accepts: (robot, labels, evidence).
+    pub fn per_robot(&self, keep: impl Fn(u64) -> bool) -> Vec<(u64, [f64; NUM_LABELS], Evidence)> {
+        let mut out: std::collections::BTreeMap<u64, ([f64; NUM_LABELS], Evidence)> = Default::default();
+        for i in (0..self.len()).filter(|&i| keep(self.robots[i])) {
+            let e = self.get(i);
+            match out.get_mut(&self.robots[i]) {
+                Some((_, sum)) => sum.add(&e),
+                None => {
+                    out.insert(self.robots[i], (self.labels[i], e));
+                }
+            }
+        }
+        out.into_iter().map(|(r, (y, e))| (r, y, e)).collect()
+    }
+
+    fn encode(&self, e: &mut Encoder) {
+        e.u64s([self.len() as u64]).u64s(self.robots.iter().copied()).u64s(self.recording.iter().copied());
+        e.f64s(&self.labels.concat()).f64s(&self.h).f64s(&self.b);
+    }
+
+    fn decode(d: &mut Decoder, rank: usize) -> Option<Self> {
+        let n = d.usize()?;
+        let robots = d.u64s(n)?;
+        let recording = d.u64s(n)?;
+        let labels = d.label_rows(n)?;
+        let h = d.f64s(n.checked_mul(packed_len(rank))?)?;
+        let b = d.f64s(n.checked_mul(rank)?)?;
+        Some(EvidenceList { rank, robots, labels, recording, h, b })
+    }
+}
+
+/// A dataset's physics: the evidence of every window (same windows, same order as the window cache's) and of every
+/// whole recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhysicsSet {
+    pub spec: WindowSpec,
+    pub windows: EvidenceList,
+    pub recordings: EvidenceList,
+    /// Whether this came from the cache file.
+    pub hit: bool,
+}
+
+/// What determines a physics cache besides the dataset.
+#[derive(Debug, Clone)]
+pub struct EvidenceSettings {
+    pub spec: WindowSpec,
+    pub prior: ParameterPrior,
+}
+
+/// One recording's contribution: its robot, labels, windows' and whole evidence.
+pub struct RecordingEvidence {
+    robot: u64,
+    labels: [f64; NUM_LABELS],
+    windows: Vec<Evidence>,
+    whole: Evidence,
+}
+
+const MAGIC: &[u8; 8] = b"DFPHY001";
+
+impl PhysicsSet {
+    /// An empty set for evidence in the coordinates of a prior of rank `rank`.
+    pub fn new(spec: WindowSpec, rank: usize) -> Self {
+        PhysicsSet { spec, windows: EvidenceList::new(rank), recordings: EvidenceList::new(rank), hit: false }
+    }
+
+    /// The physics of every shard of the `generate` directory `dir` (see [`super::load_or_build`]).
+    pub fn load_or_build(
+        dir: &Path,
+        spec: &WindowSpec,
+        prior: &ParameterPrior,
+        progress: impl FnMut(usize, usize) -> bool,
+    ) -> Result<(Self, Vec<Skipped>), CacheError> {
+        super::load_or_build(dir, &EvidenceSettings { spec: *spec, prior: prior.clone() }, progress)
+    }
+
+    /// Adds a dataset recording (with labels and robot id): its windows' and its whole evidence.
+    pub fn add(&mut self, rec: &Recording, prior: &ParameterPrior) -> Result<(), Skipped> {
+        let settings = EvidenceSettings { spec: self.spec, prior: prior.clone() };
+        let evidence = of_recording(rec, &settings)?;
+        self.append(&rec.path, evidence)
+    }
+}
+
+fn of_recording(rec: &Recording, s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
+    let (Some(labels), Some(robot)) = (rec.labels, rec.robot) else {
+        return Err(Skipped::new(&rec.path, "no labels or robot id (not a dataset shard)"));
+    };
+    let (windows, whole) = recording_evidence(rec, &s.prior, &s.spec)?;
+    Ok(RecordingEvidence { robot, labels, windows, whole })
+}
+
+impl Cached for PhysicsSet {
+    const KIND: &'static str = "physics";
+    const CHUNK_PER_THREAD: usize = 8;
+    type Settings = EvidenceSettings;
+    type Shard = RecordingEvidence;
+    type Added = ();
+
+    /// The window geometry, the noise model and the prior.
+    fn key(s: &EvidenceSettings) -> CacheKey {
+        let (spec, prior) = (&s.spec, &s.prior);
+        let mut m = format!(
+            "physics|{}:{}:{}|{}|{}|{}|",
+            spec.len,
+            spec.stride,
+            spec.ssr,
+            NOISE_FLOOR,
+            prior.rank(),
+            PAIRING_REVISION
+        )
+        .into_bytes();
+        for v in prior.mean().iter().chain(prior.factor()) {
+            m.extend(v.to_le_bytes());
+        }
+        m.extend(MAGIC);
+        CacheKey::new(Self::KIND, &m)
+    }
+
+    fn empty(s: &EvidenceSettings) -> Self {
+        PhysicsSet::new(s.spec, s.prior.rank())
+    }
+
+    fn read_shard(path: &Path, s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
+        of_recording(&read(path, None)?, s)
+    }
+
+    fn append(&mut self, _path: &Path, r: RecordingEvidence) -> Result<(), Skipped> {
+        let k = self.recordings.len() as u64;
+        self.recordings.push(r.robot, r.labels, k, &r.whole);
+        for w in &r.windows {
+            self.windows.push(r.robot, r.labels, k, w);
+        }
+        Ok(())
+    }
+
+    fn encode(&self) -> Vec<u8> {
+        let mut e = Encoder::new(MAGIC, (self.windows.h.len() + self.recordings.h.len()) * 8);
+        e.u64s([self.spec.len, self.spec.stride, self.spec.ssr, self.windows.rank].map(|v| v as u64));
+        self.windows.encode(&mut e);
+        self.recordings.encode(&mut e);
+        e.finish()
+    }
+
+    fn decode(bytes: &[u8]) -> Option<Self> {
+        let mut d = Decoder::open(bytes, MAGIC)?;
+        let spec = WindowSpec { len: d.usize()?, stride: d.usize()?, ssr: d.usize()? };
+        let rank = d.usize()?;
+        let windows = EvidenceList::decode(&mut d, rank)?;
+        let recordings = EvidenceList::decode(&mut d, rank)?;
+        d.done().then_some(PhysicsSet { spec, windows, recordings, hit: true })
+    }
+
+    /// Recordings and windows in merged order, each window still pointing at its recording.
+    fn combine(parts: &[PhysicsSet]) -> Result<PhysicsSet, CombineError> {
+        let (spec, rank) = parts.first().map_or((WindowSpec::default(), 0), |p| (p.spec, p.windows.rank));
+        let mut out = PhysicsSet::new(spec, rank);
+        let mut moved: Vec<Vec<u64>> = parts.iter().map(|p| vec![0; p.recordings.len()]).collect();
+        let robots = |f: fn(&PhysicsSet) -> &EvidenceList| parts.iter().map(|p| &f(p).robots[..]).collect::<Vec<_>>();
+        for (p, items) in super::partitions::merged_order(&robots(|s| &s.recordings)) {
+            for i in items {
+                moved[p][i] = out.recordings.len() as u64;
+                out.recordings.push_from(&parts[p].recordings, i, moved[p][i]);
+            }
+        }
+        for (p, items) in super::partitions::merged_order(&robots(|s| &s.windows)) {
+            for i in items {
+                let list = &parts[p].windows;
+                out.windows.push_from(list, i, moved[p][list.recording[i] as usize]);
+            }
+        }
+        Ok(out)
+    }
+}

@@ -1,0 +1,133 @@
+//! The simulation settings of a run: controller tuning, waypoint tours, engine and failure checks. A contract: part
+//! of every run manifest (the worker simulates with them, the coordinator refuses to resume under others). What
+//! they drive lives in `dynforge_worker`: `control` (the gravity-aware PID), `trajectory` (tours and moves),
+//! `engine` and `simulate`.
+
+use serde::{Deserialize, Serialize};
+
+/// Everything that shapes a simulation besides the robot and its move.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Control and logging period [s] (the paper logs at 1 kHz).
+    pub dt: f64,
+    pub engine: EngineKind,
+    pub gains: PidGains,
+    pub trajectory: TrajectoryConfig,
+    /// Periods between collision checks (exact geometry, no margin; the planned path keeps a clearance).
+    pub collision_every: usize,
+    /// A joint faster than this multiple of its speed limit means the simulation went unstable.
+    pub velocity_blowup: f64,
+    /// Energy may exceed its start value plus the work done by the motors by this much [J] plus 5 % of the scale.
+    pub energy_slack: f64,
+    /// At the end of the hold every joint must be this close to the goal [rad], else the run timed out.
+    pub goal_tolerance: f64,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            dt: 1e-3,
+            engine: EngineKind::Native,
+            gains: PidGains::default(),
+            trajectory: TrajectoryConfig::default(),
+            collision_every: 10,
+            velocity_blowup: 1.5,
+            energy_slack: 1.0,
+            goal_tolerance: 0.02,
+        }
+    }
+}
+
+/// Which engine runs a job.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum EngineKind {
+    /// Featherstone ABA + RK4 with exact stick/slip Coulomb friction (`dynforge_worker`'s own).
+    Native,
+    /// rapier3d-f64's reduced-coordinate multibody (semi-implicit Euler substeps).
+    Rapier,
+}
+
+impl EngineKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            EngineKind::Native => "native",
+            EngineKind::Rapier => "rapier",
+        }
+    }
+}
+
+/// Controller tuning.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PidGains {
+    /// Closed-loop natural frequency per joint [rad/s].
+    pub omega: [f64; 6],
+    /// Smallest inertia the gains are scheduled on per joint [kg m^2]: light joints get the stiffness needed to
+    /// push through Coulomb friction, up to the discrete loop's stability bound (`2 zeta omega dt I_floor / I` < 1.5
+    /// for the lightest generated joint).
+    pub inertia_floor: [f64; 6],
+    /// Damping ratio.
+    pub zeta: f64,
+    /// Integral corner as a fraction of `omega`.
+    pub integral_ratio: f64,
+    /// Gravity-aware gain `K_G` as a fraction of `Kp`, per metre of end-effector height per radian.
+    pub kg_fraction: f64,
+    /// Largest share of the effort limit the integral term may hold.
+    pub windup_fraction: f64,
+    /// Control periods between gain schedules (inertia, Jacobian, stability scale).
+    pub schedule_every: usize,
+}
+
+impl Default for PidGains {
+    fn default() -> Self {
+        PidGains {
+            omega: [25.0; 6],
+            inertia_floor: [0.3, 0.8, 0.3, 0.06, 0.02, 0.02],
+            zeta: 1.0,
+            integral_ratio: 1.0,
+            kg_fraction: 0.5,
+            windup_fraction: 0.7,
+            schedule_every: 5,
+        }
+    }
+}
+
+/// How waypoints and moves are drawn.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrajectoryConfig {
+    /// Waypoints per robot = trajectories per robot.
+    pub waypoints: usize,
+    /// Clearance kept from every collision [m].
+    pub clearance: f64,
+    /// Waypoints stay this far inside the joint limits [rad].
+    pub limit_margin: f64,
+    /// Largest joint-space step between collision checks along a path [rad].
+    pub path_step: f64,
+    /// Peak joint speed of a move as a fraction of the joint's speed limit.
+    pub speed_fraction: f64,
+    /// Shortest move [s].
+    pub min_move: f64,
+    /// Time the goal is held after a move [s].
+    pub hold: f64,
+    /// Candidate draws per waypoint before giving up.
+    pub max_attempts: usize,
+}
+
+impl Default for TrajectoryConfig {
+    fn default() -> Self {
+        TrajectoryConfig {
+            waypoints: 16,
+            clearance: 0.02,
+            limit_margin: 0.15,
+            path_step: 0.02,
+            speed_fraction: 0.5,
+            min_move: 4.0,
+            hold: 2.0,
+            max_attempts: 2000,
+        }
+    }
+}
