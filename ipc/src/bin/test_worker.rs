@@ -1,6 +1,7 @@
 //! A worker for the transport's tests and benchmarks: answers every job with one `Progress` and a `Done` whose
 //! `samples` is `robot * 100 + trajectory` and `content_hash` is `seed ^ job_id`. Jobs with `robot == 666` sleep
-//! 60 s first when `DYNFORGE_TEST_HANG=1` (a job to kill the worker in), `robot == 777` are `Discarded` with reason "collision", `robot == 888` are dropped without any report.
+//! 60 s first when `DYNFORGE_TEST_HANG=1` (a job to kill the worker in), `robot == 777` are `Discarded` with reason
+//! "collision", `robot == 888` are dropped without any report.
 //!
 //! Usage: dynforge-ipc-test-worker RUN_ID SLOT
 //!        dynforge-ipc-test-worker coordinator RUN_ID   (a coordinator publishing a status every 10 ms until
@@ -31,18 +32,18 @@ fn run(args: &[String]) -> Result<(), Box<dyn std::error::Error>> {
     let hang = std::env::var_os("DYNFORGE_TEST_HANG").is_some_and(|v| v == "1");
     let mut worker = Worker::new(&run, slot.parse()?)?;
     while let Some(job) = worker.next_job()? {
-        if job.robot == 888 {
+        if job.job.robot == 888 {
             continue;
         }
-        if hang && job.robot == 666 {
+        if hang && job.job.robot == 666 {
             std::thread::sleep(Duration::from_secs(60));
         }
         worker.report(&JobReport::Progress { job_id: job.job_id, permille: 500 })?;
-        let report = if job.robot == 777 {
+        let report = if job.job.robot == 777 {
             JobReport::Discarded { job_id: job.job_id, reason: "collision".into() }
         } else {
-            let samples = job.robot * 100 + u64::from(job.trajectory);
-            JobReport::Done { job_id: job.job_id, samples, content_hash: job.seed ^ job.job_id }
+            let samples = job.job.robot * 100 + u64::from(job.job.trajectory);
+            JobReport::Done { job_id: job.job_id, samples, content_hash: job.job.seed ^ job.job_id }
         };
         worker.report(&report)?;
     }
