@@ -320,8 +320,8 @@ fn a_refused_generate_touches_nothing_of_the_live_run() {
     let mut live = spawn(&generate_args(dir.path(), "6", "4", &["--workers", "2"]));
     wait_for_entries(dir.path(), 2, &mut live);
     let manifest = std::fs::read(dir.path().join("manifest.toml")).unwrap();
-    // Repeated refused starts with other settings: before the lock, each deleted the live run's files in flight and
-    // could rewrite the manifest (--robots 8 grows it) before noticing the other coordinator.
+    // Repeated refused starts with other settings: the lock comes first, or each would delete the live run's files in
+    // flight and could rewrite the manifest (--robots 8 grows it) before noticing the other coordinator.
     for _ in 0..5 {
         let o = dynforge(&generate_args(dir.path(), "8", "4", &["--workers", "2"]));
         assert!(!o.status.success());

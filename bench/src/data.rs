@@ -1,8 +1,8 @@
 //! Data pipeline throughput: windows per second from the shards (cold: read, decode, resample, Jacobian features,
 //! window) and from the cache, for a `generate` directory.
 //!
-//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. The model consumes 44-56 (`paper`) to 270-440
-//! (`fast`) windows/s in training on this machine (bench/training.sh; README, Benchmarks).
+//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. Compare with the windows/s the model consumes in
+//! training (bench/training.sh; README, Benchmarks; figures in `docs/notes.md`).
 
 use std::time::Instant;
 

@@ -1,7 +1,8 @@
 //! `estimate` end to end on logs noisier than the simulation: one shard of each validation robot is rewritten with
 //! white noise on its efforts (each joint at a fraction of its effort RMS), read back as a user's log would be, and
-//! estimated three ways: the network on evidence at the noise floor (what `estimate` did before it measured the
-//! noise), on evidence weighted by the measured noise (now), and refined by the log's torques (what the URDF gets).
+//! estimated three ways: the network on evidence at the noise floor (as if the log's noise were not measured), on
+//! evidence weighted by the measured noise (what `estimate` does), and refined by the log's torques (what the URDF
+//! gets).
 //!
 //! Usage: dynforge-bench-noisy-logs CHECKPOINT DATA [--levels 0,1e-3,1e-2] [--robots N]
 

@@ -21,13 +21,12 @@ use crate::window::WindowSpec;
 
 /// Each joint's torque noise, as a fraction of the RMS of its own recorded torque. With the stops left out and the
 /// viscous force paired with the span's mean velocity (`identify`'s pairing revision 2), the true parameters leave
-/// ~1e-7 to 3e-6 of each joint's torque spread on simulated data, so the torques can be trusted far more than the
-/// 1e-3 the old pairing (which left 1e-5 to 1e-3) needed. Pipeline (48 robots), per window / per robot: 1e-3 0.901 /
-/// 0.956, 3e-4 0.928 / 0.961, 1e-4 0.938 / 0.961, 3e-5 0.953 / 0.962, 1e-5 0.956 / 0.962 (the last two within the
-/// +-0.01 the small validation set moves by; 3e-5 keeps a margin above the residual). One level for all joints does
-/// worse: the wrists' torques are two orders of magnitude below the shoulder's. A real robot's logs carry more
-/// (sensor noise, transmissions): its posterior is then overconfident, and the estimate's refinement by the log's
-/// own torques uses `identify`'s 1e-3 floor.
+/// ~1e-7 to 3e-6 of each joint's torque spread on simulated data; 3e-5 keeps a margin above that residual, and a
+/// lower floor gains no more than the +-0.01 the small validation set moves by (pipeline, 48 robots: per-window R2
+/// 0.953 at 3e-5, 0.956 at 1e-5; every level in `docs/notes.md`). One level for all joints does worse: the wrists'
+/// torques are two orders of magnitude below the shoulder's. A real robot's logs carry more (sensor noise,
+/// transmissions): its posterior is then overconfident, and the estimate's refinement by the log's own torques uses
+/// `identify`'s 1e-3 floor.
 pub const NOISE_FLOOR: f64 = 3e-5;
 
 /// Robots drawn from the generator to fit its prior: the generated arms span 30 directions of the 72 parameters,

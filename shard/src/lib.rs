@@ -141,8 +141,8 @@ pub fn read(path: &Path) -> Result<Bag, ShardError> {
 
 /// Checks the CRC the writer put in the file's DataEnd record (MCAP's `data_section_crc`: every byte from the
 /// leading magic up to that record) when there is one. The reader checks each chunk's CRC but not this one, and
-/// the records outside chunks (our labels and job, the robot description) are covered by nothing else: a label edited
-/// in place (10.78 -> 90.78) was read, and trained on, without a word. Files without the CRC (0) pass.
+/// the records outside chunks (our labels and job, the robot description) are covered by nothing else: without this
+/// check a label edited in place would be read, and trained on, without a word. Files without the CRC (0) pass.
 fn check_data_section(bytes: &[u8]) -> Result<(), CrcMismatch> {
     const MAGIC: usize = 8;
     const FOOTER: usize = 1 + 8 + 8 + 8 + 4;

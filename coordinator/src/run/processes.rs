@@ -43,7 +43,7 @@ impl Processes {
         // SAFETY: between fork and exec the closure makes only async-signal-safe system calls.
         unsafe {
             command.pre_exec(move || {
-                // Killed when the coordinator dies (the orphans of a `kill -9` used to run on and race the resume).
+                // Killed when the coordinator dies: the orphans of a `kill -9` would run on and race the resume.
                 if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
                     return Err(std::io::Error::last_os_error());
                 }

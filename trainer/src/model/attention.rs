@@ -1,7 +1,7 @@
 //! Multi-head attention and the pre-norm encoder layer, with dropout from an explicit [`Noise`] stream.
 //!
 //! Same computation and parameter names as burn's `MultiHeadAttention` and `TransformerEncoder` (so checkpoints
-//! written before these were ours still load); only dropout differs: see [`super::noise`].
+//! written with burn's modules load); only dropout differs: see [`super::noise`].
 
 use burn::module::Module;
 use burn::nn::{Initializer, LayerNorm, LayerNormConfig, Linear, LinearConfig};
@@ -10,7 +10,7 @@ use burn::tensor::{Device, Tensor};
 
 use super::noise::Noise;
 
-/// burn's transformer initialisation (Kaiming uniform with gain 1/sqrt(3)), kept so training behaves as before.
+/// burn's transformer initialisation (Kaiming uniform with gain 1/sqrt(3)), so these modules train as burn's do.
 fn linear(inputs: usize, outputs: usize, device: &Device) -> Linear {
     let init = Initializer::KaimingUniform { gain: 1.0 / 3f64.sqrt(), fan_out_only: false };
     LinearConfig::new(inputs, outputs).with_initializer(init).init(device)

@@ -53,8 +53,8 @@ pub struct TrainConfig {
     pub micro_batches: usize,
 }
 
-/// 4 parts of a 64-window batch measured fastest on 2 cores (bench/training.sh: 1.1-1.2x of 2 parts, 2.6x of 1):
-/// smaller parts keep the attention scores in cache.
+/// 4 parts of a 64-window batch measured fastest on 2 cores (bench/training.sh; figures in `docs/notes.md`): smaller
+/// parts keep the attention scores in cache.
 fn default_micro_batches() -> usize {
     4
 }
