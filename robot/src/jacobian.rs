@@ -16,10 +16,10 @@ pub fn point_jacobian(model: &Model, data: &mut Data, link: usize, point: &Vecto
     for j in 0..=link {
         let frame = &data.o_m_i[j];
         let z = frame.rot * model.axis(j).into_inner();
-        let lin = z.cross(&(p - frame.trans));
+        let (lin, ang) = if model.is_prismatic(j) { (z, Vector3::zeros()) } else { (z.cross(&(p - frame.trans)), z) };
         for r in 0..3 {
             data.jacobian[(r, j)] = lin[r];
-            data.jacobian[(r + 3, j)] = z[r];
+            data.jacobian[(r + 3, j)] = ang[r];
         }
     }
 }

@@ -6,11 +6,14 @@ use crate::data::Data;
 use crate::model::Model;
 use crate::spatial::Se3;
 
-/// Joint `i`'s frame in its parent's frame at angle `q`.
+/// Joint `i`'s frame in its parent's frame at position `q` (an angle, or a displacement along a prismatic axis).
 #[inline]
 pub(crate) fn joint_transform(model: &Model, i: usize, q: f64) -> Se3 {
-    let r = crate::spatial::axis_rotation(model.axis(i), q);
-    model.placement(i).then_rotate(&r)
+    let x = model.placement(i);
+    if model.is_prismatic(i) {
+        return Se3::new(x.rot, x.trans + x.rot * (model.axis(i).into_inner() * q));
+    }
+    x.then_rotate(&crate::spatial::axis_rotation(model.axis(i), q))
 }
 
 /// Fills `data.li_m_i` and `data.o_m_i` for configuration `q`.

@@ -1,4 +1,4 @@
-//! The robot model: an immutable description of a fixed-base serial chain of revolute joints.
+//! The robot model: an immutable description of a fixed-base serial chain of revolute and prismatic joints.
 //!
 //! The model keeps every parameter exactly as a URDF states it (joint origins as xyz + rpy, inertials as origin +
 //! mass + inertia about the COM) so that a write -> read round trip is lossless, and precomputes the spatial
@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Unit, Vector3};
 
-use crate::spatial::{Inertia, Se3};
+use crate::spatial::{Inertia, Motion, Se3};
 
 /// Standard gravity used by default, pointing along -z of the base frame [m/s^2].
 pub const GRAVITY: f64 = 9.81;
@@ -55,10 +55,24 @@ pub struct Limits {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum JointKind {
     Revolute,
+    /// A revolute joint without position limits.
     Continuous,
+    /// Translation along the axis [m]; its friction is in N and N s/m, its effort limit in N.
+    Prismatic,
 }
 
-/// A revolute joint; joint `i` moves link `i` of the model (the paper's link `i + 1`).
+impl JointKind {
+    /// The URDF `type` attribute.
+    pub fn urdf_name(self) -> &'static str {
+        match self {
+            JointKind::Revolute => "revolute",
+            JointKind::Continuous => "continuous",
+            JointKind::Prismatic => "prismatic",
+        }
+    }
+}
+
+/// A moving joint; joint `i` moves link `i` of the model (the paper's link `i + 1`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Joint {
     pub name: String,
@@ -135,9 +149,9 @@ pub enum ModelProblem {
     Io(String),
     #[error("cannot parse URDF: {0}")]
     Parse(String),
-    #[error("the chain has no revolute joint")]
+    #[error("the chain has no moving joint")]
     NoMovingJoint,
-    #[error("joint '{joint}' has unsupported type {kind} (only revolute and continuous joints move)")]
+    #[error("joint '{joint}' has unsupported type {kind} (revolute, continuous and prismatic joints move)")]
     UnsupportedJoint { joint: String, kind: String },
     #[error("joint '{joint}' refers to link '{link}', which is not defined")]
     UnknownLink { joint: String, link: String },
@@ -214,7 +228,7 @@ pub fn check_physical(i: &Inertia) -> Result<(), InertiaError> {
     Ok(())
 }
 
-/// The robot: base + `n` revolute joints + `n` moving links, with precomputed spatial quantities.
+/// The robot: base + `n` joints + `n` moving links, with precomputed spatial quantities.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Model {
     name: String,
@@ -224,6 +238,7 @@ pub struct Model {
     gravity: Vector3<f64>,
     placements: Vec<Se3>,
     axes: Vec<Unit<Vector3<f64>>>,
+    subspaces: Vec<Motion>,
     inertias: Vec<Inertia>,
 }
 
@@ -255,7 +270,7 @@ impl Model {
                 return Err(bad("origin is not finite".into()));
             }
             let l = &j.limits;
-            if j.kind == JointKind::Revolute && !(l.lower < l.upper) {
+            if j.kind != JointKind::Continuous && !(l.lower < l.upper) {
                 return Err(bad(format!("limits lower {} / upper {} do not bound a range", l.lower, l.upper)));
             }
             if !(l.effort > 0.0) || !(l.velocity > 0.0) {
@@ -276,6 +291,14 @@ impl Model {
             inertias.push(i);
         }
         let placements = joints.iter().map(|j| j.origin.se3()).collect();
+        let subspaces = joints
+            .iter()
+            .zip(&axes)
+            .map(|(j, a)| match j.kind {
+                JointKind::Prismatic => Motion::new(Vector3::zeros(), a.into_inner()),
+                _ => Motion::new(a.into_inner(), Vector3::zeros()),
+            })
+            .collect();
         Ok(Model {
             name: name.into(),
             base: base.into(),
@@ -284,6 +307,7 @@ impl Model {
             gravity: Vector3::new(0.0, 0.0, -GRAVITY),
             placements,
             axes,
+            subspaces,
             inertias,
         })
     }
@@ -313,9 +337,21 @@ impl Model {
     pub fn placement(&self, i: usize) -> &Se3 {
         &self.placements[i]
     }
-    /// Unit rotation axis of joint `i` in its own frame.
+    /// Unit axis of joint `i` in its own frame: the rotation axis of a revolute joint, the direction of a prismatic
+    /// one.
     pub fn axis(&self, i: usize) -> &Unit<Vector3<f64>> {
         &self.axes[i]
+    }
+
+    /// Joint `i`'s motion subspace `S` in its own frame: the twist of unit joint speed, `(axis, 0)` for a revolute
+    /// joint and `(0, axis)` for a prismatic one (angular first).
+    pub fn subspace(&self, i: usize) -> &Motion {
+        &self.subspaces[i]
+    }
+
+    /// Whether joint `i` translates.
+    pub fn is_prismatic(&self, i: usize) -> bool {
+        self.joints[i].kind == JointKind::Prismatic
     }
     /// Spatial inertia of link `i` about its frame origin.
     pub fn inertia(&self, i: usize) -> &Inertia {

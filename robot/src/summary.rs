@@ -5,23 +5,31 @@ use dynforge_proto::LABELS;
 
 use crate::{Model, parameters};
 
-/// Joints (axis, limits, friction), links (mass, COM, inertia about the COM) and, for a 6-joint arm, the 38 labels.
+/// Joints (type, axis, limits, friction), links (mass, COM, inertia about the COM) and, for a 6-joint arm, the 38
+/// labels.
 pub fn describe(model: &Model) -> String {
     use std::fmt::Write as _;
     let mut s = String::new();
-    let _ = writeln!(s, "robot '{}': {} revolute joints, base '{}'", model.name(), model.dof(), model.base());
+    let prismatic = (0..model.dof()).filter(|&i| model.is_prismatic(i)).count();
+    let kinds = match prismatic {
+        0 => format!("{} revolute joints", model.dof()),
+        p => format!("{} revolute and {p} prismatic joints", model.dof() - p),
+    };
+    let _ = writeln!(s, "robot '{}': {kinds}, base '{}'", model.name(), model.base());
     let _ = writeln!(
         s,
-        "\njoints:\n  {:<4} {:<20} {:<18} {:>17} {:>9} {:>8} {:>9} {:>10}",
-        "#", "name", "axis", "limits [rad]", "effort", "vel", "coulomb", "viscous"
+        "\njoints (prismatic: limits in m, effort in N, friction in N and N s/m):\n  {:<4} {:<20} {:<10} {:<18} {:>17} \
+         {:>9} {:>8} {:>9} {:>10}",
+        "#", "name", "type", "axis", "limits [rad]", "effort", "vel", "coulomb", "viscous"
     );
     for (i, j) in model.joints().iter().enumerate() {
         let axis = model.axis(i);
         let _ = writeln!(
             s,
-            "  {:<4} {:<20} [{:>4.1} {:>4.1} {:>4.1}]  [{:>7.3}, {:>7.3}] {:>9.1} {:>8.2} {:>9.4} {:>10.4}",
+            "  {:<4} {:<20} {:<10} [{:>4.1} {:>4.1} {:>4.1}]  [{:>7.3}, {:>7.3}] {:>9.1} {:>8.2} {:>9.4} {:>10.4}",
             i,
             j.name,
+            j.kind.urdf_name(),
             axis.x,
             axis.y,
             axis.z,

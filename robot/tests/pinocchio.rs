@@ -37,6 +37,11 @@ fn max_diff(a: &[f64], b: &[f64]) -> f64 {
 /// so forward evaluations (RNEA, CRBA, regressor, Jacobian) agree to a few hundred eps times the magnitude of the
 /// terms (1e-10 relative is a >100x margin); ABA solves M x = r and agrees to ~cond(M) eps.
 fn compare(py: &str, model: &Model, urdf_path: &str, seed: u64) {
+    compare_locked(py, model, urdf_path, &json!({}), seed)
+}
+
+/// [`compare`] against Pinocchio's model of `urdf_path` with the joints of `lock` held at their positions.
+fn compare_locked(py: &str, model: &Model, urdf_path: &str, lock: &Value, seed: u64) {
     let mut rng = Rng::stream(seed, &[]);
     let mut data = Data::new(model);
     let states: Vec<_> = (0..25)
@@ -48,6 +53,7 @@ fn compare(py: &str, model: &Model, urdf_path: &str, seed: u64) {
         .collect();
     let request = json!({
         "urdf": urdf_path,
+        "lock": lock,
         "states": states.iter().map(|(q, qd, qdd, tau)| json!({"q": q, "qd": qd, "qdd": qdd, "tau": tau})).collect::<Vec<_>>(),
     });
     let reply: Value = serde_json::from_str(&run_python(py, &[], &request.to_string())).unwrap();
@@ -105,4 +111,24 @@ fn matches_pinocchio_on_generated_robots() {
         std::fs::write(&path, r.urdf()).unwrap();
         compare(&py, &r.model, path.to_str().unwrap(), 30 + id);
     }
+}
+
+#[test]
+fn matches_pinocchio_on_the_panda_with_its_prismatic_finger_and_welded_joints() {
+    let Some(py) = dynforge_testkit::reference_python() else { return };
+    let path = run_python(&py, &["--panda"], "").trim().to_string();
+    let text = std::fs::read_to_string(&path).unwrap();
+    // The mimic finger is welded at 0; the other finger stays a prismatic joint of the chain.
+    let model = urdf::parse(&text, &path).expect("the Panda URDF loads");
+    assert_eq!(model.dof(), 8);
+    assert_eq!(model.joints()[7].name, "panda_finger_joint1");
+    assert!(model.is_prismatic(7) && (0..7).all(|i| !model.is_prismatic(i)));
+    compare_locked(&py, &model, &path, &json!({"panda_finger_joint2": 0.0}), 23);
+    // Welded where a log holds them: the fingers open 2 cm and 3 cm (a mimic joint's own position may be given).
+    let welds: urdf::Welds =
+        [("panda_finger_joint1".to_string(), 0.02), ("panda_finger_joint2".to_string(), 0.03)].into();
+    let arm = urdf::parse_welded(&text, &path, &welds).expect("the Panda loads with its fingers welded");
+    assert_eq!(arm.dof(), 7);
+    let lock = json!({"panda_finger_joint1": 0.02, "panda_finger_joint2": 0.03});
+    compare_locked(&py, &arm, &path, &lock, 24);
 }

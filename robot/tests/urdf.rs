@@ -85,10 +85,15 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
     assert!(msg.contains("bad.urdf") && msg.contains("'l1'"));
 
     let xml = format!(
-        "<robot name='x'><link name='base'/>{l1}<joint name='slide' type='prismatic'><parent link='base'/><child link='l1'/>
+        "<robot name='x'><link name='base'/>{l1}<joint name='plane' type='planar'><parent link='base'/><child link='l1'/>
          <limit lower='0' upper='1' effort='1' velocity='1'/></joint></robot>"
     );
-    assert_eq!(problem(&xml).1, ModelProblem::UnsupportedJoint { joint: "slide".into(), kind: "prismatic".into() });
+    assert_eq!(problem(&xml).1, ModelProblem::UnsupportedJoint { joint: "plane".into(), kind: "planar".into() });
+    // A prismatic joint moves (and needs a range as a revolute one does).
+    let slide = xml.replace("planar", "prismatic");
+    assert!(urdf::parse(&slide, "ok.urdf").unwrap().is_prismatic(0));
+    let (_, p) = problem(&slide.replace("upper='1'", "upper='0'"));
+    assert!(matches!(p, ModelProblem::InvalidJoint { ref joint, .. } if joint == "plane"), "{p:?}");
 
     let xml = format!(
         "<robot name='x'><link name='base'/>{l1}<joint name='free' type='floating'><parent link='base'/><child link='l1'/></joint></robot>"

@@ -40,7 +40,7 @@ fn run(model: &Model, data: &mut Data, q: &[f64], qd: &[f64], tau: &[f64], locke
     let n = model.dof();
     let is_locked = |i: usize| locked.is_some_and(|l| l[i]);
     assert!(q.len() == n && qd.len() == n && tau.len() == n, "state has the wrong length");
-    // Pass 1: placements, joint motion subspaces S = (z, o x z), twists, velocity-product accelerations, world
+    // Pass 1: placements, joint motion subspaces S = (z, o x z) (prismatic: (0, z)), twists, velocity-product accelerations, world
     // inertias and bias forces.
     for i in 0..n {
         let x = joint_transform(model, i, q[i]);
@@ -48,7 +48,11 @@ fn run(model: &Model, data: &mut Data, q: &[f64], qd: &[f64], tau: &[f64], locke
         let o_m_i = if i == 0 { x } else { data.o_m_i[i - 1].compose(&x) };
         data.o_m_i[i] = o_m_i;
         let z = o_m_i.rot * model.axis(i).into_inner();
-        let s = Motion::new(z, o_m_i.trans.cross(&z));
+        let s = if model.is_prismatic(i) {
+            Motion::new(Vector3::zeros(), z)
+        } else {
+            Motion::new(z, o_m_i.trans.cross(&z))
+        };
         let vj = s * qd[i];
         let v = if i == 0 { vj } else { data.v[i - 1] + vj };
         data.s[i] = s;

@@ -5,7 +5,6 @@ use nalgebra::DMatrix;
 use crate::data::Data;
 use crate::kinematics::forward_kinematics;
 use crate::model::Model;
-use crate::spatial::Motion;
 
 /// The symmetric mass matrix `M(q)` into (and returned from) `data.mass_matrix`.
 pub fn crba<'a>(model: &Model, data: &'a mut Data, q: &[f64]) -> &'a DMatrix<f64> {
@@ -15,12 +14,12 @@ pub fn crba<'a>(model: &Model, data: &'a mut Data, q: &[f64]) -> &'a DMatrix<f64
         data.composite[i] = *model.inertia(i);
     }
     for i in (0..n).rev() {
-        let s = Motion::new(model.axis(i).into_inner(), nalgebra::Vector3::zeros());
+        let s = *model.subspace(i);
         let mut f = data.composite[i].apply(&s);
         data.mass_matrix[(i, i)] = s.dot(&f);
         for j in (0..i).rev() {
             f = data.li_m_i[j + 1].act_force(&f);
-            let m = model.axis(j).dot(&f.ang);
+            let m = model.subspace(j).dot(&f);
             data.mass_matrix[(i, j)] = m;
             data.mass_matrix[(j, i)] = m;
         }

@@ -42,10 +42,12 @@ pub fn regressor<'a>(model: &Model, data: &'a mut Data, q: &[f64], qd: &[f64], q
     let n = model.dof();
     data.regressor.fill(0.0);
     for j in 0..n {
-        // Body j's force regressor, carried towards the base; joint i sees its angular part along its axis.
+        // Body j's force regressor, carried towards the base; joint i sees its part along its motion subspace: the
+        // moment about a revolute axis, the force along a prismatic one.
         let mut block = body_regressor(&data.v[j], &data.a[j]);
         for i in (0..=j).rev() {
-            let row = model.axis(i).transpose() * block.fixed_rows::<3>(0);
+            let rows = if model.is_prismatic(i) { 3 } else { 0 };
+            let row = model.axis(i).transpose() * block.fixed_rows::<3>(rows);
             data.regressor.view_mut((i, NI * j), (1, NI)).copy_from(&row);
             if i > 0 {
                 // To the parent's frame as a force: X^T = [[R, [p]x R], [0, R]] on 3x3 blocks, without forming

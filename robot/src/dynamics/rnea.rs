@@ -38,9 +38,9 @@ pub(crate) fn run(model: &Model, data: &mut Data, q: &[f64], qd: Option<&[f64]>,
         let x = joint_transform(model, i, q[i]);
         data.li_m_i[i] = x;
         data.o_m_i[i] = if i == 0 { x } else { data.o_m_i[i - 1].compose(&x) };
-        let s = model.axis(i).into_inner();
-        let vj = Motion::new(s * qd.map_or(0.0, |v| v[i]), Vector3::zeros());
-        let aj = Motion::new(s * qdd.map_or(0.0, |v| v[i]), Vector3::zeros());
+        let s = *model.subspace(i);
+        let vj = s * qd.map_or(0.0, |v| v[i]);
+        let aj = s * qdd.map_or(0.0, |v| v[i]);
         let (v_parent, a_parent) = if i == 0 { (Motion::ZERO, base_acc) } else { (data.v[i - 1], data.a[i - 1]) };
         let v = x.act_inv_motion(&v_parent) + vj;
         let a = x.act_inv_motion(&a_parent) + aj + v.cross_motion(&vj);
@@ -50,7 +50,7 @@ pub(crate) fn run(model: &Model, data: &mut Data, q: &[f64], qd: Option<&[f64]>,
         data.f[i] = inertia.apply(&a) + v.cross_force(&inertia.apply(&v));
     }
     for i in (0..n).rev() {
-        data.tau[i] = model.axis(i).dot(&data.f[i].ang);
+        data.tau[i] = model.subspace(i).dot(&data.f[i]);
         if i > 0 {
             let to_parent = data.li_m_i[i].act_force(&data.f[i]);
             data.f[i - 1] += to_parent;

@@ -1,15 +1,17 @@
 //! URDF in and out, via urdf-rs.
 //!
-//! Reading accepts any URDF whose moving joints form one serial chain of revolute/continuous joints from the root.
-//! Fixed joints are welded: a fixed subtree's inertia is merged into the moving link it hangs from (or into the base,
-//! where it never moves), so real-world files such as the UR5's (with `base`, `ee_link` and `tool0` frames) load.
-//! Anything else (prismatic, floating, planar joints; two moving branches) is rejected with the element's name.
+//! Reading accepts any URDF whose moving joints form one serial chain of revolute, continuous and prismatic joints
+//! from the root. Fixed joints are welded: a fixed subtree's inertia is merged into the moving link it hangs from (or
+//! into the base, where it never moves), so real-world files such as the UR5's (with `base`, `ee_link` and `tool0`
+//! frames) load. Mimic joints (a gripper's second finger) and the joints a caller names are welded too, at a given
+//! position: what a log that does not move them, or does not have them, shows of the robot. Anything else
+//! (floating, planar joints; two moving branches left) is rejected with the element's name.
 
 mod patch;
 
-pub use patch::patch;
+pub use patch::{patch, patch_welded};
 
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::Path;
 
 use crate::model::{
@@ -26,8 +28,16 @@ pub fn load(path: impl AsRef<Path>) -> Result<Model, ModelError> {
     parse(&text, &source)
 }
 
-/// Parses URDF text; `source_name` labels errors (usually the file path).
+/// Joints welded at a position (an angle, or a displacement along a prismatic axis), by name.
+pub type Welds = BTreeMap<String, f64>;
+
+/// Parses URDF text; `source_name` labels errors (usually the file path). Mimic joints are welded at 0.
 pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
+    parse_welded(text, source_name, &Welds::new())
+}
+
+/// [`parse`], with the joints of `welds` welded at their positions (mimic joints not in it at 0).
+pub fn parse_welded(text: &str, source_name: &str, welds: &Welds) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
     // The XML reader recurses per element: 20,000 nested elements overflow its stack (an abort, not an error).
     if nesting_exceeds(text, MAX_NESTING) {
@@ -35,7 +45,25 @@ pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
     }
     let robot = urdf_rs::read_from_string(text)
         .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
-    build(&robot, source_name)
+    build(&robot, source_name, welds)
+}
+
+/// The names of the joints of the URDF `text` that can move (revolute, continuous, prismatic; mimic joints not),
+/// in document order: what a caller may weld.
+pub fn movable_joints(text: &str, source_name: &str) -> Result<Vec<String>, ModelError> {
+    let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    if nesting_exceeds(text, MAX_NESTING) {
+        return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
+    }
+    let robot = urdf_rs::read_from_string(text)
+        .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
+    Ok(robot.joints.iter().filter(|j| moves(j)).map(|j| j.name.clone()).collect())
+}
+
+/// Whether `j` is a degree of freedom of its own.
+fn moves(j: &urdf_rs::Joint) -> bool {
+    use urdf_rs::JointType::*;
+    matches!(j.joint_type, Revolute | Continuous | Prismatic) && j.mimic.is_none()
 }
 
 /// Deepest element nesting accepted. Real URDFs nest 3-5 levels (robot, link, inertial, origin); xacro output and
@@ -117,11 +145,14 @@ fn bad_number(text: &str) -> Option<String> {
     None
 }
 
-fn build(robot: &urdf_rs::Robot, source_name: &str) -> Result<Model, ModelError> {
+fn build(robot: &urdf_rs::Robot, source_name: &str, welds: &Welds) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
     check_unique_names(robot).map_err(err)?;
+    if let Some(name) = welds.keys().find(|w| !robot.joints.iter().any(|j| &&j.name == w)) {
+        return Err(err(ModelProblem::InvalidJoint { joint: name.clone(), reason: "no such joint to weld".into() }));
+    }
     let tree = Tree::of(robot).map_err(err)?;
-    let chain = moving_chain(&tree).map_err(err)?;
+    let chain = moving_chain(&tree, welds).map_err(err)?;
     let (joints, links) = chain.into_iter().map(Moving::into_joint_and_link).unzip();
     Model::new(source_name, robot.name.clone(), tree.root, joints, links)
 }
@@ -216,9 +247,30 @@ impl Moving {
     }
 }
 
+/// The joint `j`'s motion at position `q` as a transform (its frame after the motion in its frame before).
+fn joint_motion(j: &urdf_rs::Joint, q: f64) -> Se3 {
+    let axis = nalgebra::Vector3::from(*j.axis.xyz);
+    let Some(axis) = nalgebra::Unit::try_new(axis, 1e-12) else { return Se3::IDENTITY };
+    match j.joint_type {
+        urdf_rs::JointType::Prismatic => Se3::new(nalgebra::Matrix3::identity(), axis.into_inner() * q),
+        urdf_rs::JointType::Fixed => Se3::IDENTITY,
+        _ => Se3::revolute(&axis, q),
+    }
+}
+
+/// The position `j` is welded at, if it is welded: a fixed joint at its origin, a mimic joint or one of `welds` at
+/// the given position (mimic joints not given: 0).
+fn weld_position(j: &urdf_rs::Joint, welds: &Welds) -> Option<f64> {
+    match (j.joint_type == urdf_rs::JointType::Fixed, welds.get(&j.name)) {
+        (true, _) => Some(0.0),
+        (false, Some(&q)) => Some(q),
+        (false, None) => j.mimic.is_some().then_some(0.0),
+    }
+}
+
 /// The moving joints of `tree` in chain order, found by a walk from the root. On the walk's stack, `body` is the
 /// moving link a URDF link is welded to (None: the fixed base) and `x` the URDF link's frame in that body's frame.
-fn moving_chain(tree: &Tree) -> Result<Vec<Moving>, ModelProblem> {
+fn moving_chain(tree: &Tree, welds: &Welds) -> Result<Vec<Moving>, ModelProblem> {
     let mut chain: Vec<Moving> = Vec::new();
     let mut moving_child_of: HashMap<Option<usize>, String> = HashMap::new();
     let mut stack: Vec<(&str, Option<usize>, Se3)> = vec![(tree.root, None, Se3::IDENTITY)];
@@ -226,17 +278,18 @@ fn moving_chain(tree: &Tree) -> Result<Vec<Moving>, ModelProblem> {
         for j in tree.children.get(link_name).map(Vec::as_slice).unwrap_or(&[]) {
             let origin = Se3::from_xyz_rpy(*j.origin.xyz, *j.origin.rpy);
             let child = tree.links[j.child.link.as_str()];
-            match j.joint_type {
-                urdf_rs::JointType::Fixed => {
-                    let xc = x.compose(&origin);
-                    if let Some(b) = body
-                        && child.inertial.mass.value > 0.0
-                    {
-                        chain[b].weld(child, &xc);
-                    }
-                    stack.push((&j.child.link, body, xc));
+            if let Some(q) = weld_position(j, welds) {
+                let xc = x.compose(&origin).compose(&joint_motion(j, q));
+                if let Some(b) = body
+                    && child.inertial.mass.value > 0.0
+                {
+                    chain[b].weld(child, &xc);
                 }
-                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous => {
+                stack.push((&j.child.link, body, xc));
+                continue;
+            }
+            match j.joint_type {
+                urdf_rs::JointType::Revolute | urdf_rs::JointType::Continuous | urdf_rs::JointType::Prismatic => {
                     check_serial(tree.root, &chain, &mut moving_child_of, body, j)?;
                     let index = chain.len();
                     chain.push(Moving::new(j, child, &x, &origin));
@@ -287,13 +340,18 @@ fn convert_inertial(i: &urdf_rs::Inertial) -> Inertial {
 }
 
 fn convert_joint(j: &urdf_rs::Joint, origin: Pose) -> Joint {
-    let continuous = j.joint_type == urdf_rs::JointType::Continuous;
+    let kind = match j.joint_type {
+        urdf_rs::JointType::Continuous => JointKind::Continuous,
+        urdf_rs::JointType::Prismatic => JointKind::Prismatic,
+        _ => JointKind::Revolute,
+    };
+    let continuous = kind == JointKind::Continuous;
     let (lower, upper) = if continuous { (f64::NEG_INFINITY, f64::INFINITY) } else { (j.limit.lower, j.limit.upper) };
     let friction =
         j.dynamics.as_ref().map_or(Friction::default(), |d| Friction { coulomb: d.friction, viscous: d.damping });
     Joint {
         name: j.name.clone(),
-        kind: if continuous { JointKind::Continuous } else { JointKind::Revolute },
+        kind,
         origin,
         axis: *j.axis.xyz,
         limits: Limits { lower, upper, effort: j.limit.effort, velocity: j.limit.velocity },
@@ -389,6 +447,7 @@ pub fn to_string(model: &Model, base: &BaseLink) -> String {
             joint_type: match j.kind {
                 JointKind::Revolute => urdf_rs::JointType::Revolute,
                 JointKind::Continuous => urdf_rs::JointType::Continuous,
+                JointKind::Prismatic => urdf_rs::JointType::Prismatic,
             },
             origin: pose(&j.origin),
             parent: urdf_rs::LinkName { link: parent },

@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::reader::Reader;
 
-use super::{convert_inertial, parse};
+use super::{Welds, convert_inertial, parse_welded, weld_position};
 use crate::model::{Inertial, Model, ModelError, ModelProblem, check_physical};
 use crate::spatial::Inertia;
 
@@ -157,12 +157,9 @@ struct Document<'a> {
 }
 
 impl<'a> Document<'a> {
-    fn new(robot: &'a urdf_rs::Robot, elements: &'a [Element]) -> Self {
-        let fixed_children: HashMap<&str, Vec<&str>> = robot
-            .joints
-            .iter()
-            .filter(|j| j.joint_type == urdf_rs::JointType::Fixed)
-            .fold(HashMap::new(), |mut m, j| {
+    fn new(robot: &'a urdf_rs::Robot, elements: &'a [Element], welds: &Welds) -> Self {
+        let fixed_children: HashMap<&str, Vec<&str>> =
+            robot.joints.iter().filter(|j| weld_position(j, welds).is_some()).fold(HashMap::new(), |mut m, j| {
                 m.entry(j.parent.link.as_str()).or_default().push(j.child.link.as_str());
                 m
             });
@@ -266,12 +263,23 @@ fn apply(document: &str, mut edits: Vec<Edit>) -> String {
 /// it, and notes on what could not be written as asked. Everything but the moving links' `<inertial>` and the moving
 /// joints' `<dynamics>` is kept as it was.
 pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec<String>), ModelError> {
+    patch_welded(document, source, model, &Welds::new())
+}
+
+/// [`patch`] for a `model` read with the joints of `welds` welded ([`super::parse_welded`]): the links they carry
+/// keep their own inertia, as fixed ones do.
+pub fn patch_welded(
+    document: &str,
+    source: &str,
+    model: &Model,
+    welds: &Welds,
+) -> Result<(String, Vec<String>), ModelError> {
     let err = |problem| ModelError { source_name: source.to_string(), problem };
-    let original = parse(document, source)?;
+    let original = parse_welded(document, source, welds)?;
     check_same_joints(&original, model).map_err(err)?;
     let robot = urdf_rs::read_from_string(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
     let elements = elements(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
-    let doc = Document::new(&robot, &elements);
+    let doc = Document::new(&robot, &elements, welds);
     let mut edits: Vec<Edit> = Vec::new();
     let mut notes = Vec::new();
     for (k, (joint, link)) in model.joints().iter().zip(model.links()).enumerate() {

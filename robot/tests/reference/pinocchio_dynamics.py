@@ -1,9 +1,10 @@
 """Independent reference: evaluates Pinocchio's algorithms on a URDF for given states.
 
-Reads JSON from stdin: {"urdf": path, "states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}, ...]}
+Reads JSON from stdin: {"urdf": path, "states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}, ...],
+"lock": {joint: position}} ("lock" optional: those joints are held at the position, Pinocchio's reduced model).
 Writes JSON to stdout: one entry per state with Pinocchio's rnea, aba, crba, nonlinear effects, the joint torque
 regressor and the LOCAL_WORLD_ALIGNED Jacobian of the last joint frame's origin.
-With --ur5, prints the path of the UR5 URDF shipped by example-robot-data instead.
+With --ur5 or --panda, prints the path of that URDF shipped by example-robot-data instead.
 """
 import json
 import pathlib
@@ -14,17 +15,33 @@ import numpy as np
 import pinocchio as pin
 
 
-def ur5_path() -> str:
+ROBOTS = {
+    "--ur5": "ur_description/urdf/ur5_robot.urdf",
+    "--panda": "panda_description/urdf/panda.urdf",
+}
+
+
+def robot_path(flag: str) -> str:
     prefix = pathlib.Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix"
-    return str(prefix / "share/example-robot-data/robots/ur_description/urdf/ur5_robot.urdf")
+    return str(prefix / "share/example-robot-data/robots" / ROBOTS[flag])
 
 
 def main() -> None:
-    if "--ur5" in sys.argv:
-        print(ur5_path())
-        return
+    for flag in ROBOTS:
+        if flag in sys.argv:
+            print(robot_path(flag))
+            return
     request = json.load(sys.stdin)
     model = pin.buildModelFromUrdf(request["urdf"])
+    lock = request.get("lock", {})
+    if lock:
+        q0 = pin.neutral(model)
+        ids = []
+        for name, value in lock.items():
+            jid = model.getJointId(name)
+            q0[model.joints[jid].idx_q] = value
+            ids.append(jid)
+        model = pin.buildReducedModel(model, ids, q0)
     data = model.createData()
     last = model.njoints - 1
     out = []

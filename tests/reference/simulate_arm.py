@@ -1,0 +1,207 @@
+"""Independent reference: a real arm's log, simulated by MuJoCo and written as a ROS 2 bag (MCAP, /joint_states and
+/robot_description) the way a driver publishes it. Used by the tests of `dynforge identify` on example-robot-data's
+UR5 and Panda: the robot is the URDF's (its inertials, as MuJoCo reads them), the joints have known Coulomb and
+viscous friction, and the log has what real drivers give: an effort convention, a rate, encoder-quantised
+positions, velocities from encoder differences or none, effort noise.
+
+stdin (JSON):
+  urdf            path of the URDF simulated (its text is also the bag's /robot_description unless "description")
+  description     optional: the text written as /robot_description instead
+  friction        {joint: [coulomb, viscous]} for the joints that move (the others are held still)
+  seed            of the reference motion (multi-sines)
+  duration        seconds of motion (1 s ramps in and out included)
+  rate            log rate [Hz], 100 to 1000
+  effort          "held": the logged effort is the torque applied until the next sample (zero-order hold, control at
+                  the log rate); "sampled": the torque is updated every 0.1 ms and the log samples it at its instants
+  noise           effort noise, a fraction of each joint's torque RMS (white, Gaussian); 0 for none
+  counts          encoder counts per revolution (0: exact positions); prismatic joints get 1e-6 m steps
+  velocity        "measured" (exact), "encoder" (differences of the logged positions), "absent" (no velocity array)
+  hold            {joint: position} for joints held still (default: the middle of their limits, or 0)
+  out             path of the bag; "split": 2 writes it as a rosbag2 directory of two files (NAME_0.mcap, NAME_1.mcap)
+stdout (JSON): {"joints": [...], "samples": n, "torque_rms": [...]}.
+"""
+import json
+import os
+import sys
+
+import mujoco
+import numpy as np
+from mcap_ros2.writer import Writer
+
+JOINT_STATE = "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n" \
+    "================================================================================\nMSG: std_msgs/Header\n" \
+    "builtin_interfaces/Time stamp\nstring frame_id\n" \
+    "================================================================================\nMSG: builtin_interfaces/Time\n" \
+    "int32 sec\nuint32 nanosec\n"
+STRING = "string data\n"
+
+
+def mujoco_model(urdf_text):
+    """The URDF as MuJoCo loads it for dynamics alone: no geometry (meshes would need their files), inertias as given
+    (no balancing, no fusing of static bodies)."""
+    import re
+    text = re.sub(r"<visual>.*?</visual>|<visual\s[^>]*>.*?</visual>", "", urdf_text, flags=re.S)
+    text = re.sub(r"<collision>.*?</collision>|<collision\s[^>]*>.*?</collision>", "", text, flags=re.S)
+    text = re.sub(r"<transmission.*?</transmission>|<gazebo.*?</gazebo>", "", text, flags=re.S)
+    compiler = '<mujoco><compiler balanceinertia="false" fusestatic="false" discardvisual="true"/></mujoco>'
+    text = re.sub(r"(<robot[^>]*>)", r"\1" + compiler, text, count=1)
+    return mujoco.MjModel.from_xml_string(text)
+
+
+def reference(rng, lo, hi, vmax, duration):
+    """A multi-sine around the middle of [lo, hi] within 35 % of the range each way and 60 % of the speed limit,
+    ramped in and out over 1 s so the motion starts and ends at rest: functions of t giving (q, qd, qdd)."""
+    lo, hi = max(lo, -np.pi), min(hi, np.pi)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    freqs = rng.uniform(0.1, 0.8, 5)
+    phases = rng.uniform(0, 2 * np.pi, 5)
+    weights = rng.uniform(0.5, 1.0, 5)
+    amp = 0.35 * half / weights.sum()
+    speed = amp * (weights * 2 * np.pi * freqs).sum()
+    if speed > 0.6 * vmax:
+        amp *= 0.6 * vmax / speed
+
+    def ramp(t):
+        # C2 ramp: 0 at t <= 0, 1 at t >= 1 (smootherstep), and its two derivatives.
+        s = np.clip(t, 0.0, 1.0)
+        w = s**3 * (10 - 15 * s + 6 * s * s)
+        dw = 30 * s * s * (1 - s) ** 2 if 0 < t < 1 else 0.0
+        ddw = 60 * s * (1 - s) * (1 - 2 * s) if 0 < t < 1 else 0.0
+        return w, dw, ddw
+
+    def at(t):
+        w = 2 * np.pi * freqs
+        x = amp * (weights * np.sin(w * t + phases)).sum()
+        dx = amp * (weights * w * np.cos(w * t + phases)).sum()
+        ddx = -amp * (weights * w * w * np.sin(w * t + phases)).sum()
+        a, da, dda = ramp(t)
+        b, db, ddb = ramp(duration - t)
+        env, denv, ddenv = a * b, da * b - a * db, dda * b - 2 * da * db + a * ddb
+        return centre + env * x, denv * x + env * dx, ddenv * x + 2 * denv * dx + env * ddx
+
+    return at
+
+
+def simulate(req):
+    urdf_text = open(req["urdf"]).read()
+    m = mujoco_model(urdf_text)
+    d = mujoco.MjData(m)
+    rate, duration, effort = req["rate"], req["duration"], req["effort"]
+    log_dt = 1.0 / rate
+    substeps = 10 if effort == "sampled" else max(1, int(round(log_dt / 0.00025)))
+    sim_dt = (1e-4 if effort == "sampled" else log_dt / substeps)
+    m.opt.timestep = sim_dt
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_LIMIT
+    friction = req["friction"]
+    joints = [m.joint(j).name for j in range(m.njnt)]
+    rng = np.random.default_rng(req["seed"])
+    refs = {}
+    for j, name in enumerate(joints):
+        dof = m.jnt_dofadr[j]
+        m.dof_armature[dof] = 0.0
+        coulomb, viscous = friction.get(name, [0.0, 0.0])
+        m.dof_damping[dof] = viscous
+        m.dof_frictionloss[dof] = coulomb
+        m.dof_solref[dof] = [2 * sim_dt, 1.0]
+        m.dof_solimp[dof] = [0.9999, 0.9999, 0.001, 0.5, 2.0]
+        lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (-np.pi, np.pi)
+        if name in friction:
+            vmax = 2.0 if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE else 0.1
+            refs[name] = reference(rng, lo, hi, vmax, duration)
+        else:
+            held = req.get("hold", {}).get(name, 0.5 * (lo + hi) if m.jnt_limited[j] else 0.0)
+            refs[name] = (lambda v: (lambda t: (v, 0.0, 0.0)))(held)
+    qadr = [m.jnt_qposadr[j] for j in range(m.njnt)]
+    vadr = [m.jnt_dofadr[j] for j in range(m.njnt)]
+    for j, name in enumerate(joints):
+        d.qpos[qadr[j]] = refs[name](0.0)[0]
+    mujoco.mj_forward(m, d)
+    steps = int(round(duration / log_dt))
+    control_every = 1 if effort == "sampled" else substeps
+    full = np.zeros((m.nv, m.nv))
+    omega = 20.0
+    log_t, log_q, log_qd, log_tau = [], [], [], []
+    tau = np.zeros(m.nv)
+    total_substeps = steps * (int(round(log_dt / sim_dt)) if effort == "sampled" else substeps)
+    per_log = total_substeps // steps
+    for k in range(total_substeps + 1):
+        t = k * sim_dt
+        if k % control_every == 0:
+            mujoco.mj_fullM(m, d, full)
+            acc = np.zeros(m.nv)
+            for j, name in enumerate(joints):
+                q, qd, qdd = refs[name](t)
+                e, ed = q - d.qpos[qadr[j]], qd - d.qvel[vadr[j]]
+                acc[vadr[j]] = qdd + omega * omega * e + 2 * omega * ed
+            tau = full @ acc + d.qfrc_bias
+        if k % per_log == 0:
+            log_t.append(t)
+            log_q.append([d.qpos[a] for a in qadr])
+            log_qd.append([d.qvel[a] for a in vadr])
+            log_tau.append(list(tau))
+        if k == total_substeps:
+            break
+        d.qfrc_applied[:] = tau
+        mujoco.mj_step(m, d)
+    return m, joints, np.array(log_t), np.array(log_q), np.array(log_qd), np.array(log_tau)
+
+
+def degrade(req, m, joints, t, q, qd, tau):
+    """What the driver publishes: quantised positions, velocity as configured, noisy effort."""
+    rng = np.random.default_rng(req["seed"] + 1_000_003)
+    counts = req.get("counts", 0)
+    if counts:
+        for j in range(len(joints)):
+            step = 2 * np.pi / counts if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE else 1e-6
+            q[:, j] = np.round(q[:, j] / step) * step
+    velocity = req.get("velocity", "measured")
+    if velocity == "encoder":
+        qd = np.vstack([np.zeros((1, q.shape[1])), np.diff(q, axis=0) / np.diff(t)[:, None]])
+    rms = np.sqrt((tau**2).mean(axis=0))
+    noise = req.get("noise", 0.0)
+    if noise:
+        tau = tau + rng.normal(size=tau.shape) * noise * rms
+    return q, (None if velocity == "absent" else qd), tau, rms
+
+
+def write_bag(path, description, names, t, q, qd, tau, start=0, stop=None):
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        js = writer.register_msgdef("sensor_msgs/msg/JointState", JOINT_STATE)
+        text = writer.register_msgdef("std_msgs/msg/String", STRING)
+        t0 = 1_700_000_000_000_000_000
+        if start == 0:
+            writer.write_message("/robot_description", text, {"data": description}, log_time=t0, publish_time=t0)
+        for i in range(start, len(t) if stop is None else stop):
+            ns = t0 + int(round(t[i] * 1e9))
+            msg = {
+                "header": {"stamp": {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}, "frame_id": ""},
+                "name": names,
+                "position": [float(v) for v in q[i]],
+                "velocity": [] if qd is None else [float(v) for v in qd[i]],
+                "effort": [float(v) for v in tau[i]],
+            }
+            writer.write_message("/joint_states", js, msg, log_time=ns, publish_time=ns, sequence=i)
+        writer.finish()
+
+
+def main():
+    req = json.load(sys.stdin)
+    m, joints, t, q, qd, tau = simulate(req)
+    q, qd, tau, rms = degrade(req, m, joints, t, q, qd, tau)
+    description = req.get("description") or open(req["urdf"]).read()
+    out = req["out"]
+    if req.get("split", 1) > 1:
+        os.makedirs(out, exist_ok=True)
+        name = os.path.basename(os.path.normpath(out))
+        cut = len(t) // 2
+        write_bag(os.path.join(out, f"{name}_0.mcap"), description, joints, t, q, qd, tau, 0, cut)
+        write_bag(os.path.join(out, f"{name}_1.mcap"), description, joints, t, q, qd, tau, cut, None)
+    else:
+        write_bag(out, description, joints, t, q, qd, tau)
+    json.dump({"joints": joints, "samples": len(t), "torque_rms": list(rms)}, sys.stdout)
+
+
+if __name__ == "__main__":
+    main()
