@@ -10,20 +10,26 @@
 //!   network's estimate and its error, or the training distribution), so that the data pin down every identifiable
 //!   combination and the prior decides only what the data cannot see.
 //!
-//! - [`calibrate`] does the same without a network: a robot description (URDF) is the prior, calibrated to logs.
+//! - [`calibrate`] calibrates a robot description (URDF) to logs without a network: the physically consistent
+//!   parameters of every link and joint (`consistent`, over the log-Cholesky coordinates of `standard`), the URDF as
+//!   prior, from logs conditioned as real drivers write them (`signals`, `rows`).
 //!
 //! The same normal equations score any parameter set's torque prediction on a recording ([`NormalEquations::nrmse`])
 //! without re-running the dynamics per parameter set.
 
-mod calibrate;
+pub mod calibrate;
+pub mod consistent;
 mod labels;
 mod latent;
 mod normal;
 mod refine;
+pub mod rows;
 mod samples;
+pub mod signals;
 mod solve;
+pub mod standard;
 
-pub use calibrate::{CalibrateFilesError, Calibration, FileCalibration, calibrate, calibrate_files};
+pub use calibrate::{CalibrateError, Identification, Options, identify_logs};
 pub use labels::{labels_of_parameters, parameters_of_labels};
 pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
 pub use normal::{NormalEquations, TorqueError};
@@ -44,4 +50,11 @@ pub enum IdentifyError {
     Prior(&'static str, f64),
     #[error("a parameter prior needs at least two parameter vectors of one length ({0} given)")]
     PriorSamples(usize),
+    #[error("{0}: not a physical body (its pseudo-inertia is not positive definite)")]
+    NotPhysical(String),
+    #[error(
+        "joint '{joint}' moves too little: {rows} usable samples (moving, and away from its stops and reversals); \
+         record more motion of it, or weld it with --fix {joint}"
+    )]
+    TooFewRows { joint: String, rows: usize },
 }

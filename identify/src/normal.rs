@@ -17,12 +17,12 @@ use crate::samples::{REST_SPEED, for_each, row_support};
 /// residuals of interest (the true parameters leave ~2e-4 of the torque's spread on simulated data).
 #[derive(Debug, Clone)]
 pub struct NormalEquations {
-    dof: usize,
-    a: Vec<DMatrix<f64>>,
-    b: Vec<DVector<f64>>,
-    c: Vec<f64>,
-    sum: Vec<f64>,
-    n: Vec<usize>,
+    pub(crate) dof: usize,
+    pub(crate) a: Vec<DMatrix<f64>>,
+    pub(crate) b: Vec<DVector<f64>>,
+    pub(crate) c: Vec<f64>,
+    pub(crate) sum: Vec<f64>,
+    pub(crate) n: Vec<usize>,
 }
 
 impl NormalEquations {
@@ -63,20 +63,21 @@ impl NormalEquations {
                 if qd[j].abs() < REST_SPEED {
                     continue;
                 }
-                let (a, b) = (&mut self.a[j], &mut self.b[j]);
-                for &r in &support[j] {
-                    let yr = y[(j, r)];
-                    b[r] += yr * tau[j];
-                    for &c in &support[j] {
-                        a[(r, c)] += yr * y[(j, c)];
-                    }
-                }
-                self.c[j] += tau[j] * tau[j];
-                self.sum[j] += tau[j];
-                self.n[j] += 1;
+                accumulate_row(&mut self.a[j], y, j, &support[j]);
+                self.add_torque(j, y, &support[j], tau[j]);
             }
         });
         Ok(())
+    }
+
+    /// Adds joint `j`'s torque `tau` of a row (its regressor row `y`, non-zero in `support`) to the right-hand side.
+    pub(crate) fn add_torque(&mut self, j: usize, y: &DMatrix<f64>, support: &[usize], tau: f64) {
+        for &r in support {
+            self.b[j][r] += y[(j, r)] * tau;
+        }
+        self.c[j] += tau * tau;
+        self.sum[j] += tau;
+        self.n[j] += 1;
     }
 
     /// The normal equations of `traj` alone.
@@ -148,6 +149,16 @@ impl NormalEquations {
         let mut e = TorqueError::default();
         e.add(self, pi);
         e.overall()
+    }
+}
+
+/// `a += y_j^T y_j` over the columns `support` of row `j` of `y`.
+pub(crate) fn accumulate_row(a: &mut DMatrix<f64>, y: &DMatrix<f64>, j: usize, support: &[usize]) {
+    for &r in support {
+        let yr = y[(j, r)];
+        for &c in support {
+            a[(r, c)] += yr * y[(j, c)];
+        }
     }
 }
 

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::read::{ReadError, log_file};
+use crate::read::{ReadError, read_bag};
 
 /// A log's summary.
 #[derive(Debug, Clone)]
@@ -27,9 +27,9 @@ pub struct Info {
 impl Info {
     /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
     pub fn of(path: &Path) -> Result<Info, ReadError> {
-        let file = log_file(path)?;
-        let bytes = std::fs::metadata(&file).map(|m| m.len()).unwrap_or(0);
-        let bag = dynforge_shard::read(&file)?;
+        let (files, bag) = read_bag(path)?;
+        let bytes = files.iter().map(|f| std::fs::metadata(f).map_or(0, |m| m.len())).sum();
+        let file = if files.len() == 1 { files[0].clone() } else { path.to_path_buf() };
         let stamps: Vec<f64> = bag.joint_states.iter().map(|m| m.stamp_ns() as f64 * 1e-9).collect();
         let span = stamps.iter().copied().reduce(f64::min).zip(stamps.iter().copied().reduce(f64::max));
         let robot = bag.robot_description.as_ref().map(|text| {

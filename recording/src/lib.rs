@@ -3,14 +3,18 @@
 //! ([`resample`]), with the robot and, for dataset shards, the labels and robot id ([`read`]). [`dataset`] lists
 //! the shards of a run directory (or any folder of shards), also while a generation is still adding them.
 //!
+//! [`log`] reads a user's log as its driver wrote it (own rate, segments between gaps, the robot with the joints the
+//! log does not move welded), for identification.
+//!
 //! Nothing here depends on the trainer's ML framework: physics-only commands (`identify`) read logs through this
 //! crate.
 
 pub mod dataset;
 pub mod info;
+pub mod log;
 mod read;
 pub mod resample;
 pub mod samples;
 
-pub use read::{GRID_DT, ReadError, Recording, log_file, read, robot_document};
+pub use read::{GRID_DT, ReadError, Recording, log_files, read, read_bag, robot_document};
 pub use samples::JointTrajectory;

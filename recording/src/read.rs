@@ -37,10 +37,12 @@ pub struct Recording {
     pub robot: Option<u64>,
 }
 
-/// The MCAP file of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`).
-pub fn log_file(path: &Path) -> Result<PathBuf, ReadError> {
+/// The MCAP files of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`,
+/// `NAME_1.mcap`, ... when the recorder split it), in recording order: as `metadata.yaml` lists them, else by the
+/// number the recorder appends.
+pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     if !path.is_dir() {
-        return Ok(path.to_path_buf());
+        return Ok(vec![path.to_path_buf()]);
     }
     let content = |problem: String| ReadError::Content { file: path.display().to_string(), problem };
     let listing = std::fs::read_dir(path).map_err(|e| content(e.to_string()))?;
@@ -48,12 +50,31 @@ pub fn log_file(path: &Path) -> Result<PathBuf, ReadError> {
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
         .collect();
-    mcaps.sort();
-    match mcaps.len() {
-        1 => Ok(mcaps.remove(0)),
-        0 => Err(content("a directory with no .mcap file (a log is an MCAP file or a rosbag2 directory)".into())),
-        n => Err(content(format!("a directory with {n} .mcap files (a split bag): give one of them"))),
+    if mcaps.is_empty() {
+        return Err(content("a directory with no .mcap file (a log is an MCAP file or a rosbag2 directory)".into()));
     }
+    let listed = std::fs::read_to_string(path.join("metadata.yaml")).unwrap_or_default();
+    let order = |p: &PathBuf| {
+        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let number = name.trim_end_matches(".mcap").rsplit('_').next().and_then(|n| n.parse::<u64>().ok());
+        (listed.find(&name).unwrap_or(usize::MAX), number.unwrap_or(u64::MAX), name)
+    };
+    mcaps.sort_by_key(order);
+    Ok(mcaps)
+}
+
+/// The bag of a log (a file, or every file of a rosbag2 directory joined: messages in recording order, the
+/// `/robot_description` of whichever file has one, metadata of all).
+pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
+    let files = log_files(path)?;
+    let mut bag = dynforge_shard::read(&files[0])?;
+    for file in &files[1..] {
+        let more = dynforge_shard::read(file)?;
+        bag.joint_states.extend(more.joint_states);
+        bag.robot_description = more.robot_description.or(bag.robot_description);
+        bag.metadata.extend(more.metadata);
+    }
+    Ok((files, bag))
 }
 
 /// The URDF document of the robot of `log`: the file `urdf` when given, else the log's `/robot_description`; with the
@@ -64,9 +85,8 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
             .map_err(|e| ReadError::Content { file: path.display().to_string(), problem: e.to_string() })?;
         return Ok((text, path.display().to_string()));
     }
-    let path = &log_file(log)?;
-    let file = path.display().to_string();
-    let bag = dynforge_shard::read(path)?;
+    let (files, bag) = read_bag(log)?;
+    let file = files[0].display().to_string();
     let text = bag.robot_description.ok_or_else(|| ReadError::Content {
         file: file.clone(),
         problem: "no /robot_description in the file: give the robot's URDF".into(),
@@ -74,13 +94,13 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
     Ok((text, format!("{file} (/robot_description)")))
 }
 
-/// Reads a shard or bag (a file, or a rosbag2 directory of one); the robot comes from its `/robot_description`
-/// unless `model` is given.
+/// Reads a shard or bag (a file, or a rosbag2 directory); the robot comes from its `/robot_description` unless
+/// `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
-    let path = &log_file(path)?;
+    let (files, bag) = read_bag(path)?;
+    let path = &files[0];
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
-    let bag = dynforge_shard::read(path)?;
     let model = match (model, &bag.robot_description) {
         (Some(m), _) => m.clone(),
         (None, Some(text)) => {

@@ -44,8 +44,28 @@ pub struct SamplesError {
 
 /// The `/joint_states` of `bag` for the joints `names` (in that order), matched by name in every message. Messages
 /// must carry position, velocity and effort for each of these joints; other joints are ignored. Samples are sorted
-/// by stamp; repeated stamps keep the first message.
+/// by stamp; repeated stamps keep the first message; times count from the first stamp.
 pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTrajectory, SamplesError> {
+    Ok(joint_states(bag, names, file, true)?.0)
+}
+
+/// [`from_bag`] for a log whose driver may publish no velocity: when no message has any (empty `velocity`
+/// arrays, as ROS 2 allows), the velocities are zeros and the flag says they were not logged.
+pub fn from_bag_any_velocity(
+    bag: &Bag,
+    names: &[String],
+    file: &Path,
+) -> Result<(JointTrajectory, bool), SamplesError> {
+    let logged = bag.joint_states.iter().any(|m| !m.velocity.is_empty());
+    joint_states(bag, names, file, logged)
+}
+
+fn joint_states(
+    bag: &Bag,
+    names: &[String],
+    file: &Path,
+    with_velocity: bool,
+) -> Result<(JointTrajectory, bool), SamplesError> {
     let err = |problem: String| SamplesError { file: file.display().to_string(), problem };
     if bag.joint_states.is_empty() {
         return Err(err("no sensor_msgs/msg/JointState messages on /joint_states".into()));
@@ -87,12 +107,8 @@ pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTraject
             }
             Ok(columns.iter().map(|&c| v[c]).collect())
         };
-        rows.push((
-            m.stamp_ns(),
-            pick(&m.position, "position")?,
-            pick(&m.velocity, "velocity")?,
-            pick(&m.effort, "effort")?,
-        ));
+        let velocity = if with_velocity { pick(&m.velocity, "velocity")? } else { vec![0.0; n] };
+        rows.push((m.stamp_ns(), pick(&m.position, "position")?, velocity, pick(&m.effort, "effort")?));
     }
     rows.sort_by_key(|r| r.0);
     let messages = rows.len();
@@ -108,13 +124,16 @@ pub fn from_bag(bag: &Bag, names: &[String], file: &Path) -> Result<JointTraject
         )));
     }
     let mut out = JointTrajectory { names: names.to_vec(), ..JointTrajectory::default() };
+    // Times from the first stamp, in exact nanoseconds before the conversion: a stamp of 1.7e9 s (a real clock)
+    // converted whole would carry 2.4e-7 s of rounding into every period.
+    let first = rows.first().map_or(0, |r| r.0);
     for (stamp, q, qd, tau) in rows {
-        out.t.push(stamp as f64 * 1e-9);
+        out.t.push((stamp - first) as f64 * 1e-9);
         out.q.extend(q);
         out.qd.extend(qd);
         out.tau.extend(tau);
     }
-    Ok(out)
+    Ok((out, with_velocity))
 }
 
 #[cfg(test)]

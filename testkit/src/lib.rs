@@ -78,3 +78,27 @@ pub fn sinusoid_recording(
     }
     out
 }
+
+/// Writes `traj` (joints in the order of its names) as a ROS 2-style bag at `path`, with `urdf` as its
+/// `/robot_description`: what a user's log of that robot is.
+pub fn write_bag(path: &Path, urdf: &str, traj: &dynforge_recording::JointTrajectory) {
+    let n = traj.joints();
+    let joint_states: Vec<dynforge_proto::shard::JointState> = (0..traj.len())
+        .map(|i| {
+            let ns = (traj.t[i] * 1e9).round() as i64;
+            let (q, qd, tau) = traj.sample(i);
+            dynforge_proto::shard::JointState {
+                sec: (ns / 1_000_000_000) as i32,
+                nanosec: (ns % 1_000_000_000) as u32,
+                frame_id: String::new(),
+                name: traj.names.clone(),
+                position: q.to_vec(),
+                velocity: qd.to_vec(),
+                effort: tau.to_vec(),
+            }
+        })
+        .collect();
+    assert_eq!(joint_states.first().map_or(n, |m| m.name.len()), n);
+    let content = dynforge_shard::ShardContent { urdf, joint_states: &joint_states, metadata: &Default::default() };
+    dynforge_shard::write(path, &content).expect("the bag is written");
+}

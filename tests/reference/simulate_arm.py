@@ -12,7 +12,8 @@ stdin (JSON):
   duration        seconds of motion (1 s ramps in and out included)
   rate            log rate [Hz], 100 to 1000
   effort          "held": the logged effort is the torque applied until the next sample (zero-order hold, control at
-                  the log rate); "sampled": the torque is updated every 0.1 ms and the log samples it at its instants
+                  the log rate); "sampled": the torque is updated every simulation step (0.25 ms) and the log samples it
+                  at its instants
   noise           effort noise, a fraction of each joint's torque RMS (white, Gaussian); 0 for none
   counts          encoder counts per revolution (0: exact positions); prismatic joints get 1e-6 m steps
   velocity        "measured" (exact), "encoder" (differences of the logged positions), "absent" (no velocity array)
@@ -88,8 +89,9 @@ def simulate(req):
     d = mujoco.MjData(m)
     rate, duration, effort = req["rate"], req["duration"], req["effort"]
     log_dt = 1.0 / rate
-    substeps = 10 if effort == "sampled" else max(1, int(round(log_dt / 0.00025)))
-    sim_dt = (1e-4 if effort == "sampled" else log_dt / substeps)
+    # 0.25 ms steps at 1 kHz (finer for a log of a slower rate); a sampled effort is updated every step.
+    substeps = max(4, int(round(log_dt / 0.00025)))
+    sim_dt = log_dt / substeps
     m.opt.timestep = sim_dt
     m.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT | mujoco.mjtDisableBit.mjDSBL_LIMIT
@@ -123,8 +125,9 @@ def simulate(req):
     omega = 20.0
     log_t, log_q, log_qd, log_tau = [], [], [], []
     tau = np.zeros(m.nv)
-    total_substeps = steps * (int(round(log_dt / sim_dt)) if effort == "sampled" else substeps)
-    per_log = total_substeps // steps
+    applied = None
+    total_substeps = steps * substeps
+    per_log = substeps
     for k in range(total_substeps + 1):
         t = k * sim_dt
         if k % control_every == 0:
@@ -139,10 +142,14 @@ def simulate(req):
             log_t.append(t)
             log_q.append([d.qpos[a] for a in qadr])
             log_qd.append([d.qvel[a] for a in vadr])
-            log_tau.append(list(tau))
+            # Held: the torque applied from now on. Sampled: the torque at this instant, which the simulation's
+            # staircase (a step every sim_dt) has half way between the step before and the step after.
+            at_instant = tau if effort == "held" or applied is None else 0.5 * (applied + tau)
+            log_tau.append(list(at_instant))
         if k == total_substeps:
             break
         d.qfrc_applied[:] = tau
+        applied = tau
         mujoco.mj_step(m, d)
     return m, joints, np.array(log_t), np.array(log_q), np.array(log_qd), np.array(log_tau)
 
@@ -186,8 +193,48 @@ def write_bag(path, description, names, t, q, qd, tau, start=0, stop=None):
         writer.finish()
 
 
+def perturb(req):
+    """A "nominal" URDF as users have them: every link's mass, centre of mass and inertia scaled by 1 +- u with u
+    drawn in [low, high] (independently per quantity, random sign), friction removed. stdin: {"urdf", "seed", "low",
+    "high", "out"}; stdout: {"factors": {link: [mass, com, inertia]}}."""
+    import re
+    rng = np.random.default_rng(req["seed"])
+    text = open(req["urdf"]).read()
+    factors = {}
+
+    def factor():
+        return float(1.0 + rng.choice([-1.0, 1.0]) * rng.uniform(req["low"], req["high"]))
+
+    def link(m):
+        body = m.group(0)
+        name = re.search(r'name="([^"]+)"', body).group(1)
+        f = [factor(), factor(), factor()]
+
+        def scale(attr, k):
+            return lambda a: f'{a.group(1)}="' + " ".join(repr(float(float(v) * f[k])) for v in a.group(2).split()) + '"'
+
+        def inertial(i):
+            x = i.group(0)
+            x = re.sub(r'(value)="([^"]+)"', scale("value", 0), x)
+            x = re.sub(r'(<origin[^>]*\sxyz)="([^"]+)"', scale("xyz", 1), x)
+            x = re.sub(r'(i[xyz]{2})="([^"]+)"', scale("i", 2), x)
+            return x
+
+        factors[name] = f
+        return re.sub(r"<inertial>.*?</inertial>", inertial, body, flags=re.S)
+
+    text = re.sub(r"<link\s[^>]*>.*?</link>", link, text, flags=re.S)
+    text = re.sub(r'(<dynamics[^>]*?)\sdamping="[^"]*"', r'\1 damping="0.0"', text)
+    text = re.sub(r'(<dynamics[^>]*?)\sfriction="[^"]*"', r'\1 friction="0.0"', text)
+    open(req["out"], "w").write(text)
+    json.dump({"factors": factors}, sys.stdout)
+
+
 def main():
     req = json.load(sys.stdin)
+    if "--perturb" in sys.argv:
+        perturb(req)
+        return
     m, joints, t, q, qd, tau = simulate(req)
     q, qd, tau, rms = degrade(req, m, joints, t, q, qd, tau)
     description = req.get("description") or open(req["urdf"]).read()

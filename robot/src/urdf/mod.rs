@@ -48,16 +48,29 @@ pub fn parse_welded(text: &str, source_name: &str, welds: &Welds) -> Result<Mode
     build(&robot, source_name, welds)
 }
 
-/// The names of the joints of the URDF `text` that can move (revolute, continuous, prismatic; mimic joints not),
-/// in document order: what a caller may weld.
-pub fn movable_joints(text: &str, source_name: &str) -> Result<Vec<String>, ModelError> {
+/// The joints of the URDF `text` that can move, in document order: those that are degrees of freedom of their own
+/// (revolute, continuous, prismatic), and the mimic joints that follow another. What a caller may weld.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct MovableJoints {
+    pub free: Vec<String>,
+    pub mimic: Vec<String>,
+}
+
+/// The [`MovableJoints`] of the URDF `text`.
+pub fn movable_joints(text: &str, source_name: &str) -> Result<MovableJoints, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
     if nesting_exceeds(text, MAX_NESTING) {
         return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
     }
     let robot = urdf_rs::read_from_string(text)
         .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
-    Ok(robot.joints.iter().filter(|j| moves(j)).map(|j| j.name.clone()).collect())
+    let names = |keep: &dyn Fn(&urdf_rs::Joint) -> bool| {
+        robot.joints.iter().filter(|j| keep(j)).map(|j| j.name.clone()).collect()
+    };
+    Ok(MovableJoints {
+        free: names(&moves),
+        mimic: names(&|j| j.mimic.is_some() && j.joint_type != urdf_rs::JointType::Fixed),
+    })
 }
 
 /// Whether `j` is a degree of freedom of its own.

@@ -1,0 +1,354 @@
+//! What an identification found, per parameter: value, standard deviation, the URDF's value and the prior's
+//! spread, and what decided it.
+
+use dynforge_proto::params::{INERTIAL_PARAMS_PER_LINK as NI, friction_index};
+use dynforge_recording::log::Log;
+use dynforge_robot::Model;
+use dynforge_robot::parameters::dynamic_parameters;
+use nalgebra::{DMatrix, Matrix3};
+
+use crate::consistent::{CoordinatePrior, Solution, friction_coordinate, link_coordinate};
+use crate::normal::NormalEquations;
+use crate::signals::{EffortConvention, VelocityChoice, VelocitySource};
+use crate::solve::LeastSquares;
+use crate::standard::{self, COORDINATES};
+
+/// What decided a parameter: the torques (its posterior spread is under half the prior's) or, when the logs cannot
+/// tell it, the prior (the URDF's value).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Decided {
+    Torques,
+    Prior,
+}
+
+/// Posterior spread under this share of the prior's counts as decided by the torques.
+pub const INFORMED: f64 = 0.5;
+
+/// One identified parameter.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Estimated {
+    pub value: f64,
+    /// Posterior standard deviation.
+    pub std: f64,
+    /// The URDF's value and the prior's standard deviation.
+    pub urdf: f64,
+    pub prior_std: f64,
+    pub decided: Decided,
+}
+
+impl Estimated {
+    fn new(value: f64, std: f64, urdf: f64, prior_std: f64) -> Self {
+        let decided = if std < INFORMED * prior_std { Decided::Torques } else { Decided::Prior };
+        Estimated { value, std, urdf, prior_std, decided }
+    }
+}
+
+/// A moving link's parameters in its URDF frame: mass [kg], centre of mass [m], inertia about the COM in the
+/// link's axes `[ixx, ixy, ixz, iyy, iyz, izz]` [kg m^2] (the link's own and its welded links', as a loader sums
+/// them).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct LinkEstimate {
+    pub name: String,
+    pub mass: Estimated,
+    pub com: [Estimated; 3],
+    pub inertia: [Estimated; 6],
+}
+
+/// A joint's friction (N m, N m s/rad; prismatic: N, N s/m) and what its torques showed.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct JointEstimate {
+    pub name: String,
+    pub prismatic: bool,
+    pub coulomb: Estimated,
+    pub viscous: Estimated,
+    /// The torque noise its residual shows [N m or N], and the residual's integrated autocorrelation time [samples].
+    pub noise: f64,
+    pub correlation: f64,
+    /// Torque NRMSE of the calibrated robot on the logs, and the noise floor the raw effort shows (its
+    /// high-frequency scatter), both relative to the torque's spread.
+    pub nrmse: f64,
+    pub noise_floor: f64,
+}
+
+/// A calibration of a URDF to logs.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Identification {
+    pub logs: Vec<String>,
+    pub samples: usize,
+    /// Torque rows (moving joint samples) used.
+    pub rows: usize,
+    /// The logs' sampling rate [Hz].
+    pub rate: f64,
+    pub velocity: VelocityChoice,
+    pub effort: EffortConvention,
+    pub effort_reason: String,
+    /// Identifiable parameter combinations in the logs, of the full parameter vector's `parameters`.
+    pub rank: usize,
+    pub parameters: usize,
+    /// Torque NRMSE on the logs of the URDF as given, of least squares (base parameters) and of the calibration.
+    pub nrmse_urdf: f64,
+    pub nrmse_least_squares: f64,
+    pub nrmse_calibrated: f64,
+    pub links: Vec<LinkEstimate>,
+    pub joints: Vec<JointEstimate>,
+    pub iterations: usize,
+    pub converged: bool,
+    pub notes: Vec<String>,
+    /// The calibrated robot.
+    #[serde(skip)]
+    pub model: Model,
+}
+
+/// What [`Identification::new`] reads.
+pub(crate) struct Fitted<'a> {
+    pub model: &'a Model,
+    pub calibrated: Model,
+    pub ne: &'a NormalEquations,
+    pub ls: &'a LeastSquares,
+    pub prior: &'a CoordinatePrior,
+    pub solution: &'a Solution,
+    pub noise: Vec<f64>,
+    pub correlation: Vec<f64>,
+    pub convention: EffortConvention,
+    pub logs: &'a [Log],
+}
+
+/// A link's reported parameters `(mass, com, inertia about the COM in link axes)` at coordinates `theta`.
+fn reported(theta: &[f64]) -> [f64; 10] {
+    let (m, c, i) = standard::standard(&standard::params(theta), &Matrix3::identity());
+    [m, c[0], c[1], c[2], i[0], i[1], i[2], i[3], i[4], i[5]]
+}
+
+/// Standard deviations of a link's reported parameters for a covariance `cov` of its coordinates at `theta`
+/// (delta method, the derivative by central differences).
+fn reported_std(theta: &[f64], cov: &DMatrix<f64>) -> [f64; 10] {
+    let h = 1e-6;
+    let mut jac = DMatrix::zeros(10, COORDINATES);
+    for k in 0..COORDINATES {
+        let (mut up, mut down) = (theta.to_vec(), theta.to_vec());
+        up[k] += h;
+        down[k] -= h;
+        let (a, b) = (reported(&up), reported(&down));
+        for r in 0..10 {
+            jac[(r, k)] = (a[r] - b[r]) / (2.0 * h);
+        }
+    }
+    let c = &jac * cov * jac.transpose();
+    std::array::from_fn(|r| c[(r, r)].max(0.0).sqrt())
+}
+
+/// The scatter of each joint's raw effort from sample to sample, as a fraction of its spread: a robust noise
+/// level (median absolute second difference over `0.6745 sqrt(6)`) that needs no model.
+fn noise_floor(logs: &[Log], n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|j| {
+            let (mut d2, mut sum, mut sum2, mut count) = (Vec::new(), 0.0, 0.0, 0usize);
+            for s in logs.iter().flat_map(|l| &l.segments) {
+                let tau = |i: usize| s.tau[i * n + j];
+                for i in 0..s.len() {
+                    sum += tau(i);
+                    sum2 += tau(i) * tau(i);
+                    count += 1;
+                    if i >= 2 {
+                        d2.push((tau(i) - 2.0 * tau(i - 1) + tau(i - 2)).abs());
+                    }
+                }
+            }
+            if d2.is_empty() {
+                return 0.0;
+            }
+            d2.sort_by(f64::total_cmp);
+            let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
+            let c = count as f64;
+            sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
+        })
+        .collect()
+}
+
+impl Identification {
+    pub(crate) fn new(f: Fitted) -> Self {
+        let n = f.model.dof();
+        let x = &f.solution.x;
+        let prior_cov = DMatrix::from_diagonal(&f.prior.std.map(|s| s * s));
+        let block = |c: &DMatrix<f64>, l: usize| {
+            c.view((COORDINATES * l, COORDINATES * l), (COORDINATES, COORDINATES)).into_owned()
+        };
+        let nominal = dynamic_parameters(f.model);
+        let links = (0..n)
+            .map(|l| {
+                let theta = &x.as_slice()[link_coordinate(l, 0)..link_coordinate(l + 1, 0)];
+                let theta0 = &f.prior.mean.as_slice()[link_coordinate(l, 0)..link_coordinate(l + 1, 0)];
+                let (value, urdf) = (reported(theta), reported(theta0));
+                let std = reported_std(theta, &block(&f.solution.covariance, l));
+                let prior_std = reported_std(theta0, &block(&prior_cov, l));
+                let e = |k: usize| Estimated::new(value[k], std[k], urdf[k], prior_std[k]);
+                LinkEstimate {
+                    name: f.model.links()[l].name.clone(),
+                    mass: e(0),
+                    com: [e(1), e(2), e(3)],
+                    inertia: [e(4), e(5), e(6), e(7), e(8), e(9)],
+                }
+            })
+            .collect();
+        let pi = dynamic_parameters(&f.calibrated);
+        let nrmse = f.ne.nrmse(&pi);
+        let floors = noise_floor(f.logs, n);
+        let joints = (0..n)
+            .map(|j| {
+                let e = |which: usize| {
+                    let k = friction_coordinate(n, j, which);
+                    let at = friction_index(n, j) + which;
+                    Estimated::new(pi[at], f.solution.covariance[(k, k)].sqrt(), nominal[at], f.prior.std[k])
+                };
+                JointEstimate {
+                    name: f.model.joints()[j].name.clone(),
+                    prismatic: f.model.is_prismatic(j),
+                    coulomb: e(0),
+                    viscous: e(1),
+                    noise: f.noise[j],
+                    correlation: f.correlation[j],
+                    nrmse: nrmse[j],
+                    noise_floor: floors[j],
+                }
+            })
+            .collect();
+        let samples = f.logs.iter().map(Log::samples).sum();
+        Identification {
+            logs: f.logs.iter().map(Log::name).collect(),
+            samples,
+            rows: f.ne.rows(),
+            rate: 1.0 / f.logs[0].dt,
+            velocity: VelocityChoice { source: VelocitySource::Logged, cutoff: None, reason: String::new() },
+            effort: f.convention,
+            effort_reason: String::new(),
+            rank: f.ls.rank,
+            parameters: nominal.len(),
+            nrmse_urdf: f.ne.mean_nrmse(&nominal),
+            nrmse_least_squares: f.ne.mean_nrmse(&f.ls.pi),
+            nrmse_calibrated: f.ne.mean_nrmse(&pi),
+            links,
+            joints,
+            iterations: f.solution.iterations,
+            converged: f.solution.converged,
+            notes: Vec::new(),
+            model: f.calibrated,
+        }
+    }
+
+    /// The values of `model` (the calibrated robot as written and read back) in place of the calibration's, so that
+    /// what is reported is what the file holds, to the last digit.
+    pub fn report_values_of(&mut self, model: &Model) {
+        let pi = dynamic_parameters(model);
+        let n = model.dof();
+        for (l, link) in self.links.iter_mut().enumerate() {
+            let p: [f64; NI] = pi[NI * l..NI * (l + 1)].try_into().expect("10 parameters per link");
+            let (m, c, i) = standard::standard(&p, &Matrix3::identity());
+            link.mass.value = m;
+            link.com.iter_mut().zip(c).for_each(|(e, v)| e.value = v);
+            link.inertia.iter_mut().zip(i).for_each(|(e, v)| e.value = v);
+        }
+        for (j, joint) in self.joints.iter_mut().enumerate() {
+            joint.coulomb.value = pi[friction_index(n, j)];
+            joint.viscous.value = pi[friction_index(n, j) + 1];
+        }
+        self.model = model.clone();
+    }
+
+    /// Parameters the prior decided (the logs could not tell them), by name.
+    pub fn from_prior(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for l in &self.links {
+            let named = [("mass", &l.mass)]
+                .into_iter()
+                .chain(["com_x", "com_y", "com_z"].into_iter().zip(&l.com))
+                .chain(["ixx", "ixy", "ixz", "iyy", "iyz", "izz"].into_iter().zip(&l.inertia));
+            out.extend(named.filter(|(_, e)| e.decided == Decided::Prior).map(|(k, _)| format!("{}.{k}", l.name)));
+        }
+        for j in &self.joints {
+            for (k, e) in [("coulomb", &j.coulomb), ("viscous", &j.viscous)] {
+                if e.decided == Decided::Prior {
+                    out.push(format!("{}.{k}", j.name));
+                }
+            }
+        }
+        out
+    }
+}
+
+fn cell(e: &Estimated) -> String {
+    let mark = if e.decided == Decided::Prior { "*" } else { " " };
+    format!("{:>11.5} ±{:<9.2e}{mark}", e.value, e.std)
+}
+
+impl std::fmt::Display for Identification {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{} log(s), {} samples at {:.0} Hz, {} torque rows",
+            self.logs.len(),
+            self.samples,
+            self.rate,
+            self.rows
+        )?;
+        let v = &self.velocity;
+        match v.cutoff {
+            Some(fc) => writeln!(f, "velocity: from positions, low-passed at {fc:.1} Hz ({})", v.reason)?,
+            None => writeln!(f, "velocity: as logged ({})", v.reason)?,
+        }
+        writeln!(f, "effort: {} ({})", self.effort.name(), self.effort_reason)?;
+        writeln!(f, "{} of {} parameter combinations identifiable", self.rank, self.parameters)?;
+        writeln!(f, "\nlinks (value ± standard deviation; * = the logs cannot tell it: the URDF's value and spread)")?;
+        writeln!(
+            f,
+            "  {:<22} {:>23} {:>23} {:>23} {:>23}",
+            "link", "mass [kg]", "com x [m]", "com y [m]", "com z [m]"
+        )?;
+        for l in &self.links {
+            writeln!(
+                f,
+                "  {:<22} {} {} {} {}",
+                l.name,
+                cell(&l.mass),
+                cell(&l.com[0]),
+                cell(&l.com[1]),
+                cell(&l.com[2])
+            )?;
+        }
+        writeln!(f, "  {:<22} {:>23} {:>23} {:>23}   inertia about the COM [kg m^2]", "", "ixx", "iyy", "izz")?;
+        for l in &self.links {
+            let i = &l.inertia;
+            writeln!(f, "  {:<22} {} {} {}", l.name, cell(&i[0]), cell(&i[3]), cell(&i[5]))?;
+        }
+        writeln!(f, "  {:<22} {:>23} {:>23} {:>23}", "", "ixy", "ixz", "iyz")?;
+        for l in &self.links {
+            let i = &l.inertia;
+            writeln!(f, "  {:<22} {} {} {}", l.name, cell(&i[1]), cell(&i[2]), cell(&i[4]))?;
+        }
+        writeln!(f, "\njoints (friction in N m and N m s/rad; prismatic: N and N s/m)")?;
+        writeln!(f, "  {:<22} {:>23} {:>23} {:>10} {:>8}", "joint", "coulomb", "viscous", "noise", "NRMSE")?;
+        for j in &self.joints {
+            let (c, v) = (cell(&j.coulomb), cell(&j.viscous));
+            writeln!(f, "  {:<22} {c} {v} {:>10.2e} {:>8.4}", j.name, j.noise, j.nrmse)?;
+        }
+        writeln!(
+            f,
+            "\ntorque NRMSE on the logs: calibrated {:.4}, URDF as given {:.4}, least squares (base parameters) {:.4}",
+            self.nrmse_calibrated, self.nrmse_urdf, self.nrmse_least_squares
+        )?;
+        if self.nrmse_calibrated > self.nrmse_urdf {
+            writeln!(
+                f,
+                "warning: the calibrated robot predicts these logs' torques worse than the URDF as given; keep the URDF, \
+                 or record richer motion"
+            )?;
+        }
+        if !self.converged {
+            writeln!(f, "warning: the search stopped after {} iterations without converging", self.iterations)?;
+        }
+        for n in &self.notes {
+            writeln!(f, "note: {n}")?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,248 @@
+//! Physically consistent identification: the maximum a posteriori parameters of a robot given its torques, searched
+//! over the log-Cholesky coordinates of every link (`crate::standard`: every point a physical body) and non-negative
+//! friction, with a Gaussian prior in those coordinates. What the torques determine is fitted as well as least
+//! squares fits it; what they cannot see stays at the prior; no projection afterwards moves either.
+//!
+//! The data term is the weighted residual sum of squares, a quadratic form of the parameters `pi` held by the normal
+//! equations (so an iteration costs `O(p^2)`, not a pass over the log); the search is Levenberg-Marquardt on the
+//! Gauss-Newton model `pi(x + dx) ~ pi(x) + J dx`. The posterior covariance of the coordinates is the inverse of the
+//! Gauss-Newton Hessian at the optimum (Laplace).
+
+use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI, num_params};
+use dynforge_robot::Model;
+use dynforge_robot::parameters::dynamic_parameters;
+use nalgebra::{DMatrix, DVector};
+
+use crate::IdentifyError;
+use crate::normal::NormalEquations;
+use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
+
+/// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
+/// viscous friction): mean and standard deviation of each.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoordinatePrior {
+    pub mean: DVector<f64>,
+    pub std: DVector<f64>,
+}
+
+/// Smallest prior spread of friction, as a share of the joint's effort limit (Coulomb) and of its effort limit over
+/// its speed limit (viscous): a URDF that states no friction (most do) is no evidence that there is none.
+pub const FRICTION_FLOOR: f64 = 0.02;
+
+impl CoordinatePrior {
+    /// The prior of a robot description: its own values, each believed to within `spread` (relative): masses and
+    /// second moments log-normally (`a` and `d` with `spread / 2`), the off-diagonal shape within `spread / 2` of the
+    /// link's radius of gyration, the centre of mass within `spread` of its distance from the origin or the radius
+    /// of gyration (at least 1 cm), friction within `spread` of its value or [`FRICTION_FLOOR`].
+    pub fn of(model: &Model, spread: f64) -> Result<Self, IdentifyError> {
+        let n = model.dof();
+        let pi = dynamic_parameters(model);
+        let mut mean = DVector::zeros(coordinates(n));
+        let mut std = DVector::zeros(coordinates(n));
+        for l in 0..n {
+            let theta = standard::coordinates(&pi[NI * l..NI * (l + 1)])
+                .ok_or_else(|| IdentifyError::NotPhysical(model.links()[l].name.clone()))?;
+            let gyration = D.iter().map(|&k| theta[k].exp()).sum::<f64>() / 3.0;
+            let base = COORDINATES * l;
+            for k in 0..COORDINATES {
+                mean[base + k] = theta[k];
+                std[base + k] = match k {
+                    ALPHA => spread / 2.0,
+                    _ if D.contains(&k) => spread / 2.0,
+                    _ if S.contains(&k) => spread / 2.0 * gyration,
+                    _ => spread * theta[k].abs().max(gyration).max(0.01),
+                };
+            }
+        }
+        for (j, joint) in model.joints().iter().enumerate() {
+            let at = COORDINATES * n + NF * j;
+            let (effort, speed) = (joint.limits.effort, joint.limits.velocity);
+            mean[at] = joint.friction.coulomb;
+            mean[at + 1] = joint.friction.viscous;
+            std[at] = (spread * joint.friction.coulomb).max(FRICTION_FLOOR * effort);
+            std[at + 1] = (spread * joint.friction.viscous).max(FRICTION_FLOOR * effort / speed);
+        }
+        Ok(CoordinatePrior { mean, std })
+    }
+}
+
+/// Length of the coordinate vector of an `n`-joint robot.
+pub fn coordinates(n: usize) -> usize {
+    n * (COORDINATES + NF)
+}
+
+/// The dynamic parameters (`dynforge_proto::params` layout) at coordinates `x`.
+pub fn parameters(n: usize, x: &DVector<f64>) -> Vec<f64> {
+    let mut pi = vec![0.0; num_params(n)];
+    for l in 0..n {
+        let p = standard::params(&x.as_slice()[COORDINATES * l..COORDINATES * (l + 1)]);
+        pi[NI * l..NI * (l + 1)].copy_from_slice(&p);
+    }
+    pi[NI * n..].copy_from_slice(&x.as_slice()[COORDINATES * n..]);
+    pi
+}
+
+/// `d pi / d x`: block diagonal, the links' log-Cholesky Jacobians then the identity of friction.
+pub fn jacobian(n: usize, x: &DVector<f64>) -> DMatrix<f64> {
+    let mut jac = DMatrix::zeros(num_params(n), coordinates(n));
+    for l in 0..n {
+        let block = standard::jacobian(&x.as_slice()[COORDINATES * l..COORDINATES * (l + 1)]);
+        for (k, column) in block.iter().enumerate() {
+            for (r, v) in column.iter().enumerate() {
+                jac[(NI * l + r, COORDINATES * l + k)] = *v;
+            }
+        }
+    }
+    for k in 0..NF * n {
+        jac[(NI * n + k, COORDINATES * n + k)] = 1.0;
+    }
+    jac
+}
+
+/// The weighted data: `G = sum_j w_j Y_j^T Y_j`, `g = sum_j w_j Y_j^T tau_j`, `c = sum_j w_j tau_j^T tau_j`.
+struct Data {
+    g: DMatrix<f64>,
+    rhs: DVector<f64>,
+    c: f64,
+}
+
+impl Data {
+    fn new(ne: &NormalEquations, weights: &[f64]) -> Self {
+        let p = num_params(ne.dof());
+        let (mut g, mut rhs, mut c) = (DMatrix::zeros(p, p), DVector::zeros(p), 0.0);
+        for (j, w) in weights.iter().enumerate() {
+            let (a, b, cj, _) = ne.joint(j);
+            g += a * *w;
+            rhs += b * *w;
+            c += cj * w;
+        }
+        Data { g, rhs, c }
+    }
+
+    /// Half the weighted residual sum of squares of `pi` (infinite where `pi` overflowed: a step too far).
+    fn cost(&self, pi: &DVector<f64>) -> f64 {
+        let rss = pi.dot(&(&self.g * pi)) - 2.0 * self.rhs.dot(pi) + self.c;
+        if rss.is_finite() { 0.5 * rss.max(0.0) } else { f64::INFINITY }
+    }
+}
+
+/// Where the search ended.
+#[derive(Debug, Clone)]
+pub struct Solution {
+    pub x: DVector<f64>,
+    /// Posterior covariance of `x` (Laplace, at the optimum).
+    pub covariance: DMatrix<f64>,
+    pub iterations: usize,
+    pub converged: bool,
+}
+
+/// Most iterations before giving up; a calibration from a description off by tens of percent converges in tens.
+pub const MAX_ITERATIONS: usize = 500;
+
+/// Relative decrease of the objective under which the search has converged.
+const TOLERANCE: f64 = 1e-11;
+
+/// The MAP coordinates for the normal equations `ne`, each joint's rows weighted by `weights` (its inverse noise
+/// variance), under `prior`, searched from `start`.
+pub fn solve(
+    ne: &NormalEquations,
+    weights: &[f64],
+    prior: &CoordinatePrior,
+    start: &DVector<f64>,
+) -> Result<Solution, IdentifyError> {
+    let n = ne.dof();
+    let data = Data::new(ne, weights);
+    let precision = prior.std.map(|s| 1.0 / (s * s));
+    let objective = |x: &DVector<f64>| {
+        let pi = DVector::from_vec(parameters(n, x));
+        let z = (x - &prior.mean).component_div(&prior.std);
+        data.cost(&pi) + 0.5 * z.dot(&z)
+    };
+    let mut x = start.clone();
+    let mut f = objective(&x);
+    let mut lambda = 1e-3;
+    let (mut iterations, mut converged) = (0, false);
+    while iterations < MAX_ITERATIONS && !converged {
+        iterations += 1;
+        let pi = DVector::from_vec(parameters(n, &x));
+        let jac = jacobian(n, &x);
+        let grad = jac.transpose() * (&data.g * &pi - &data.rhs) + precision.component_mul(&(&x - &prior.mean));
+        let hessian = jac.transpose() * &data.g * &jac + DMatrix::from_diagonal(&precision);
+        let scaled = Scaled::new(&hessian)?;
+        loop {
+            let mut next = &x - scaled.solve(&grad, lambda);
+            // Friction is not negative.
+            for k in COORDINATES * n..next.len() {
+                next[k] = next[k].max(0.0);
+            }
+            let f_next = objective(&next);
+            if f_next <= f {
+                // Converged when the objective stops falling, or the step is nothing on the prior's scale.
+                let step = (&next - &x).component_div(&prior.std).amax();
+                converged = f - f_next <= TOLERANCE * f.max(1.0) || step < 1e-9;
+                x = next;
+                f = f_next;
+                lambda = (lambda / 3.0).max(1e-12);
+                break;
+            }
+            lambda *= 4.0;
+            if lambda > 1e12 {
+                converged = true;
+                break;
+            }
+        }
+    }
+    let jac = jacobian(n, &x);
+    let hessian = jac.transpose() * &data.g * &jac + DMatrix::from_diagonal(&precision);
+    let covariance = Scaled::new(&hessian)?.inverse();
+    Ok(Solution { x, covariance, iterations, converged })
+}
+
+/// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`) and `S`'s
+/// eigen-decomposition: the torques and the prior weigh coordinates over twenty orders of magnitude, which a
+/// Cholesky factor of `H` itself does not survive; `S`'s eigenvalues are exact to rounding of its unit scale.
+struct Scaled {
+    d: DVector<f64>,
+    vectors: DMatrix<f64>,
+    values: Vec<f64>,
+}
+
+impl Scaled {
+    fn new(h: &DMatrix<f64>) -> Result<Self, IdentifyError> {
+        let d = DVector::from_fn(h.nrows(), |i, _| 1.0 / h[(i, i)].max(f64::MIN_POSITIVE).sqrt());
+        let s = DMatrix::from_fn(h.nrows(), h.ncols(), |i, j| h[(i, j)] * d[i] * d[j]);
+        let (vectors, values) = crate::solve::eigen(&s)?;
+        Ok(Scaled { d, vectors, values })
+    }
+
+    /// `(H + lambda diag(H))^-1 g`: the scaled matrix gains `lambda` on its (unit) diagonal.
+    fn solve(&self, g: &DVector<f64>, lambda: f64) -> DVector<f64> {
+        let rhs = g.component_mul(&self.d);
+        let proj = self.vectors.transpose() * rhs;
+        let top = self.values.iter().fold(0.0f64, |m, v| m.max(*v));
+        let y = DVector::from_fn(proj.len(), |k, _| proj[k] / (self.values[k].max(1e-15 * top) + lambda));
+        (&self.vectors * y).component_mul(&self.d)
+    }
+
+    /// `H^-1`.
+    fn inverse(&self) -> DMatrix<f64> {
+        let top = self.values.iter().fold(0.0f64, |m, v| m.max(*v));
+        let inv = DVector::from_iterator(self.values.len(), self.values.iter().map(|v| 1.0 / v.max(1e-15 * top)));
+        let s_inv = &self.vectors * DMatrix::from_diagonal(&inv) * self.vectors.transpose();
+        DMatrix::from_fn(s_inv.nrows(), s_inv.ncols(), |i, j| s_inv[(i, j)] * self.d[i] * self.d[j])
+    }
+}
+
+/// The index in `x` of link `l`'s coordinate `k`, and of joint `j`'s friction (0 Coulomb, 1 viscous).
+pub fn link_coordinate(l: usize, k: usize) -> usize {
+    COORDINATES * l + k
+}
+
+pub fn friction_coordinate(n: usize, j: usize, which: usize) -> usize {
+    COORDINATES * n + NF * j + which
+}
+
+/// Indices of the centre-of-mass coordinates of link `l` (they are the COM itself).
+pub fn com_coordinates(l: usize) -> [usize; 3] {
+    T.map(|k| COORDINATES * l + k)
+}

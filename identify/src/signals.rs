@@ -1,0 +1,402 @@
+//! From a log's samples to what identification pairs: position, velocity, acceleration and the torque that produced
+//! that acceleration, the way real drivers' logs need it.
+//!
+//! Velocity. A logged velocity that is measured (or simulated) is used as it is, and the acceleration is its central
+//! difference. One that is absent, or is the difference of encoder positions (quantised: its acceleration is
+//! noise), is replaced: the positions are low-passed by a zero-phase Butterworth filter (4th order, run forward and
+//! backward, as FloBaRoID and the classical tools do) and differentiated; the effort is filtered by the same filter,
+//! so motion and torque see the same attenuation and no phase between them. The cut-off is the highest frequency
+//! at which the position noise the log shows (its quantisation step, or its high-frequency residue) leaves the
+//! acceleration within [`ACCELERATION_NOISE`] of its own spread, or a flag's.
+//!
+//! Effort convention. A zero-order-hold driver logs at `t[i]` the torque it applies until `t[i+1]` ("held"); a
+//! driver that samples a measured torque logs its value at `t[i]` ("sampled"). The acceleration estimate at `t[i]` is
+//! a mean over `[t[i-1], t[i+1]]`, so the torque paired with it is the same mean: `(tau[i-1] + tau[i]) / 2` when held,
+//! `(tau[i-1] + 2 tau[i] + tau[i+1]) / 4` when sampled (exact for a torque linear between samples). Both pairings are
+//! kept until the data say which fits (`crate::log`), unless a flag names one.
+
+use dynforge_recording::JointTrajectory;
+use dynforge_robot::dynamics::sign;
+
+/// Where the velocity comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VelocitySource {
+    /// The log's velocity as it is.
+    Logged,
+    /// Differences of the low-passed positions.
+    Positions,
+}
+
+/// What a logged effort is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EffortConvention {
+    /// The torque applied from its stamp to the next (zero-order hold).
+    Held,
+    /// The torque at its stamp.
+    Sampled,
+}
+
+impl EffortConvention {
+    pub const ALL: [EffortConvention; 2] = [EffortConvention::Held, EffortConvention::Sampled];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            EffortConvention::Held => "held",
+            EffortConvention::Sampled => "sampled",
+        }
+    }
+}
+
+/// The acceleration noise (from the position noise, after the filter) allowed, relative to the acceleration's own
+/// standard deviation. A lower cut-off smears each stick of Coulomb friction over more samples (left out, and what
+/// is left biased); a higher one adds noise to the regressor. On MuJoCo logs of the UR5 (2^17-count encoders, 1 %
+/// effort noise) 3 % (a cut-off of ~20 Hz) gave the best held-out torques (`docs/notes.md`).
+pub const ACCELERATION_NOISE: f64 = 0.03;
+
+/// Range of cut-offs chosen from a log [Hz], and at most this share of the sampling rate.
+pub const CUTOFF_RANGE: (f64, f64) = (2.0, 100.0);
+pub const CUTOFF_SHARE: f64 = 0.25;
+
+/// How a log is turned into identification samples; `None` leaves the choice to the log.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Conditioning {
+    pub velocity: Option<VelocitySource>,
+    pub effort: Option<EffortConvention>,
+    /// Low-pass cut-off [Hz] when the velocity comes from positions.
+    pub cutoff: Option<f64>,
+}
+
+/// A segment's samples ready for the regressor: row-major `[sample][joint]` on the segment's grid. Samples 0 and
+/// `len - 1` have no neighbours and are not used.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Conditioned {
+    pub joints: usize,
+    pub dt: f64,
+    pub q: Vec<f64>,
+    pub qd: Vec<f64>,
+    pub qdd: Vec<f64>,
+    /// The velocity the viscous force is paired with: the mean over `[t[i-1], t[i+1]]`.
+    pub v: Vec<f64>,
+    /// The Coulomb column: `sign(qd)`, or for filtered positions `sign(qd)` through the same filter as the torque
+    /// (the friction torque's jump at a reversal is smeared by the filter; an unfiltered sign beside it would not
+    /// be).
+    pub coulomb: Vec<f64>,
+    /// The paired torque under each convention of [`EffortConvention::ALL`].
+    pub tau: [Vec<f64>; 2],
+    /// Samples each side of a joint's rest (or reversal) over which its own row is left out: while it sticks, its
+    /// friction is whatever holds it, and a filter spreads that torque over its width.
+    pub rest_margin: usize,
+}
+
+impl Conditioned {
+    pub fn len(&self) -> usize {
+        self.q.len() / self.joints.max(1)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.q.is_empty()
+    }
+}
+
+/// What was decided for a log's velocity, and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct VelocityChoice {
+    pub source: VelocitySource,
+    /// Low-pass cut-off [Hz] (positions only).
+    pub cutoff: Option<f64>,
+    pub reason: String,
+}
+
+/// The velocity source for a segment (or the flag's), with the reason: positions when the log has no velocity or
+/// when its velocity is the difference of its positions (what an encoder-only driver publishes).
+pub fn choose_velocity(seg: &JointTrajectory, logged: bool, flag: Option<VelocitySource>) -> (VelocitySource, String) {
+    if let Some(v) = flag {
+        return (v, "as asked".into());
+    }
+    if !logged {
+        return (VelocitySource::Positions, "the log has no velocity".into());
+    }
+    let share = difference_share(seg);
+    if share > 0.5 {
+        let why = format!(
+            "the logged velocity is the difference of the logged positions in {:.0} % of samples",
+            100.0 * share
+        );
+        return (VelocitySource::Positions, why);
+    }
+    (VelocitySource::Logged, "the log's velocity is measured".into())
+}
+
+/// Share of samples whose velocity equals the backward or forward difference of the positions (to rounding).
+fn difference_share(seg: &JointTrajectory) -> f64 {
+    let n = seg.joints();
+    let len = seg.len();
+    if len < 3 {
+        return 0.0;
+    }
+    let dt = (seg.t[len - 1] - seg.t[0]) / (len - 1) as f64;
+    let (mut hits, mut total) = (0usize, 0usize);
+    for i in 1..len - 1 {
+        for j in 0..n {
+            let v = seg.qd[i * n + j];
+            let back = (seg.q[i * n + j] - seg.q[(i - 1) * n + j]) / dt;
+            let forward = (seg.q[(i + 1) * n + j] - seg.q[i * n + j]) / dt;
+            if v == 0.0 && back == 0.0 {
+                continue;
+            }
+            let close = |d: f64| (v - d).abs() <= 1e-6 * d.abs().max(v.abs()) + 1e-12;
+            total += 1;
+            hits += usize::from(close(back) || close(forward));
+        }
+    }
+    hits as f64 / total.max(1) as f64
+}
+
+/// The low-pass cut-off [Hz] for differentiating the positions of the segments (see the module documentation).
+pub fn choose_cutoff(segments: &[JointTrajectory], dt: f64) -> f64 {
+    let fs = 1.0 / dt;
+    let hi = (CUTOFF_SHARE * fs).min(CUTOFF_RANGE.1);
+    let n = segments.first().map_or(0, JointTrajectory::joints);
+    let mut best = hi;
+    for j in 0..n {
+        let sigma = position_noise(segments, j);
+        // The acceleration's spread, seen through a filter low enough to hold no noise.
+        let acc = acceleration_spread(segments, j, dt, (CUTOFF_RANGE.0 * 2.5).min(hi));
+        if sigma <= 0.0 || acc <= 0.0 {
+            continue;
+        }
+        // White position noise of variance s^2 has a one-sided PSD of 2 s^2 / fs; its second derivative below fc
+        // has variance (2 pi)^4 (2 s^2 / fs) fc^5 / 5.
+        let allowed = (ACCELERATION_NOISE * acc).powi(2);
+        let fc = (allowed * 5.0 * fs / ((2.0 * std::f64::consts::PI).powi(4) * 2.0 * sigma * sigma)).powf(0.2);
+        best = best.min(fc);
+    }
+    best.clamp(CUTOFF_RANGE.0, hi.max(CUTOFF_RANGE.0))
+}
+
+/// The standard deviation of joint `j`'s position noise: a quantisation step's `step / sqrt(12)` when the positions
+/// are quantised, else the white noise their third differences show (`var = 20 s^2`).
+fn position_noise(segments: &[JointTrajectory], j: usize) -> f64 {
+    let mut steps: Vec<f64> = Vec::new();
+    let (mut sum3, mut count3) = (0.0, 0usize);
+    for s in segments {
+        let n = s.joints();
+        let q = |i: usize| s.q[i * n + j];
+        for i in 1..s.len() {
+            let d = (q(i) - q(i - 1)).abs();
+            if d > 0.0 {
+                steps.push(d);
+            }
+        }
+        for i in 3..s.len() {
+            let d3 = q(i) - 3.0 * q(i - 1) + 3.0 * q(i - 2) - q(i - 3);
+            sum3 += d3 * d3;
+            count3 += 1;
+        }
+    }
+    let white = (sum3 / count3.max(1) as f64 / 20.0).sqrt();
+    // Quantised: every step a multiple of the smallest (to 1 %), which is then the encoder's resolution.
+    let smallest = steps.iter().copied().fold(f64::INFINITY, f64::min);
+    let quantised = smallest.is_finite()
+        && steps.len() > 100
+        && steps.iter().all(|d| {
+            let k = d / smallest;
+            (k - k.round()).abs() < 0.01
+        });
+    if quantised { white.max(smallest / 12f64.sqrt()) } else { white }
+}
+
+/// Standard deviation of joint `j`'s acceleration after a zero-phase low-pass at `fc`.
+fn acceleration_spread(segments: &[JointTrajectory], j: usize, dt: f64, fc: f64) -> f64 {
+    let (mut sum, mut sum2, mut count) = (0.0, 0.0, 0usize);
+    for s in segments {
+        let n = s.joints();
+        let q: Vec<f64> = (0..s.len()).map(|i| s.q[i * n + j]).collect();
+        let f = Butterworth::new(fc, dt).filtfilt(&q);
+        for i in 1..f.len().saturating_sub(1) {
+            let a = (f[i + 1] - 2.0 * f[i] + f[i - 1]) / (dt * dt);
+            sum += a;
+            sum2 += a * a;
+            count += 1;
+        }
+    }
+    let c = count.max(1) as f64;
+    (sum2 / c - (sum / c).powi(2)).max(0.0).sqrt()
+}
+
+/// A segment conditioned for identification: velocity from `source`, both effort pairings.
+pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> Conditioned {
+    let n = seg.joints();
+    let len = seg.len();
+    let dt = if len > 1 { (seg.t[len - 1] - seg.t[0]) / (len - 1) as f64 } else { 0.0 };
+    let column = |v: &[f64], j: usize| (0..len).map(|i| v[i * n + j]).collect::<Vec<f64>>();
+    let filter = Butterworth::new(cutoff, dt);
+    let mut out = Conditioned {
+        joints: n,
+        dt,
+        q: seg.q.clone(),
+        qd: vec![0.0; n * len],
+        qdd: vec![0.0; n * len],
+        v: vec![0.0; n * len],
+        coulomb: vec![0.0; n * len],
+        tau: [vec![0.0; n * len], vec![0.0; n * len]],
+        rest_margin: match source {
+            VelocitySource::Logged => 0,
+            VelocitySource::Positions => (2.0 / (cutoff * dt)).ceil() as usize,
+        },
+    };
+    for j in 0..n {
+        let tau = column(&seg.tau, j);
+        let held: Vec<f64> = (0..len).map(|i| if i > 0 { 0.5 * (tau[i - 1] + tau[i]) } else { tau[i] }).collect();
+        let sampled: Vec<f64> = (0..len)
+            .map(|i| if i > 0 && i + 1 < len { 0.25 * (tau[i - 1] + 2.0 * tau[i] + tau[i + 1]) } else { tau[i] })
+            .collect();
+        let (q, qd, pairs, coulomb) = match source {
+            VelocitySource::Logged => {
+                let qd = column(&seg.qd, j);
+                let coulomb = qd.iter().map(|&v| sign(v)).collect::<Vec<_>>();
+                (column(&seg.q, j), qd, [held, sampled], coulomb)
+            }
+            VelocitySource::Positions => {
+                let q = filter.filtfilt(&column(&seg.q, j));
+                let qd: Vec<f64> = (0..len)
+                    .map(|i| if i > 0 && i + 1 < len { (q[i + 1] - q[i - 1]) / (2.0 * dt) } else { 0.0 })
+                    .collect();
+                let coulomb = filter.filtfilt(&qd.iter().map(|&v| sign(v)).collect::<Vec<_>>());
+                (q, qd, [filter.filtfilt(&held), filter.filtfilt(&tau)], coulomb)
+            }
+        };
+        for i in 1..len.saturating_sub(1) {
+            let k = i * n + j;
+            out.q[k] = q[i];
+            out.qd[k] = qd[i];
+            out.qdd[k] = match source {
+                VelocitySource::Logged => (qd[i + 1] - qd[i - 1]) / (2.0 * dt),
+                VelocitySource::Positions => (q[i + 1] - 2.0 * q[i] + q[i - 1]) / (dt * dt),
+            };
+            out.v[k] = (q[i + 1] - q[i - 1]) / (2.0 * dt);
+            out.coulomb[k] = coulomb[i];
+            out.tau[0][k] = pairs[0][i];
+            out.tau[1][k] = pairs[1][i];
+        }
+    }
+    out
+}
+
+/// A 4th-order Butterworth low-pass as two biquad sections, run forward then backward (zero phase, the magnitude
+/// squared). The ends are padded by odd reflection over a few periods of the cut-off, so the filter starts and ends
+/// on the signal's own trend instead of a step.
+#[derive(Debug, Clone, Copy)]
+pub struct Butterworth {
+    sections: [[f64; 5]; 2],
+    pad: usize,
+}
+
+impl Butterworth {
+    pub fn new(cutoff: f64, dt: f64) -> Self {
+        let k = (std::f64::consts::PI * cutoff * dt).tan();
+        let section = |q: f64| {
+            let norm = 1.0 / (1.0 + k / q + k * k);
+            let b0 = k * k * norm;
+            [b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * norm, (1.0 - k / q + k * k) * norm]
+        };
+        // The poles of the 4th-order Butterworth: Q = 1 / (2 cos(pi/8)) and 1 / (2 cos(3 pi/8)).
+        let q1 = 1.0 / (2.0 * (std::f64::consts::PI / 8.0).cos());
+        let q2 = 1.0 / (2.0 * (3.0 * std::f64::consts::PI / 8.0).cos());
+        // Ten periods of the cut-off: the slowest pole (decay 2 pi fc cos(3 pi / 8)) forgets the start by e^-24.
+        let pad = ((10.0 / (cutoff * dt)).ceil() as usize).max(12);
+        Butterworth { sections: [section(q1), section(q2)], pad }
+    }
+
+    fn run(&self, x: &mut [f64]) {
+        for [b0, b1, b2, a1, a2] in self.sections {
+            // Start in the steady state of the first value, so a constant passes unchanged.
+            let x0 = x[0];
+            let y0 = x0 * (b0 + b1 + b2) / (1.0 + a1 + a2);
+            let (mut x1, mut x2, mut y1, mut y2) = (x0, x0, y0, y0);
+            for v in x.iter_mut() {
+                let y = b0 * *v + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
+                (x2, x1, y2, y1) = (x1, *v, y1, y);
+                *v = y;
+            }
+        }
+    }
+
+    /// `x` filtered forward and backward. A line passes unchanged once the start has been forgotten (see `new`): the
+    /// odd reflection continues a linear trend across the ends.
+    pub fn filtfilt(&self, x: &[f64]) -> Vec<f64> {
+        let len = x.len();
+        if len < 3 {
+            return x.to_vec();
+        }
+        let pad = self.pad.min(len - 1);
+        let mut y = Vec::with_capacity(len + 2 * pad);
+        y.extend((1..=pad).rev().map(|i| 2.0 * x[0] - x[i]));
+        y.extend_from_slice(x);
+        y.extend((1..=pad).map(|i| 2.0 * x[len - 1] - x[len - 1 - i]));
+        self.run(&mut y);
+        y.reverse();
+        self.run(&mut y);
+        y.reverse();
+        y[pad..pad + len].to_vec()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_filter_passes_slow_motion_and_stops_fast_noise_without_phase() {
+        let dt = 1e-3;
+        let f = Butterworth::new(20.0, dt);
+        let n = 4000;
+        let slow: Vec<f64> = (0..n).map(|i| (2.0 * std::f64::consts::PI * 1.0 * i as f64 * dt).sin()).collect();
+        let fast: Vec<f64> = (0..n).map(|i| (2.0 * std::f64::consts::PI * 200.0 * i as f64 * dt).sin()).collect();
+        // |H(f)|^2 of a 4th-order Butterworth at f / fc = 0.05: 1 - 0.05^8 / 2 (amplitude through both passes).
+        let ys = f.filtfilt(&slow);
+        let err = ys.iter().zip(&slow).skip(500).take(n - 1000).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(err < 1e-6, "slow motion changed by {err}");
+        // At f / fc = 10: |H|^2 = 1 / (1 + 10^8) per pass pair.
+        let yf = f.filtfilt(&fast);
+        let amp = yf.iter().skip(500).take(n - 1000).fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(amp < 1e-6, "fast noise left {amp}");
+        // A line passes unchanged, ends included (odd reflection continues it).
+        let line: Vec<f64> = (0..2000).map(|i| 3.0 + 0.01 * i as f64).collect();
+        let yl = f.filtfilt(&line);
+        let err = yl.iter().zip(&line).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        assert!(err < 1e-8, "a line changed by {err}");
+    }
+
+    #[test]
+    fn the_cutoff_follows_the_encoder_resolution() {
+        let dt = 1e-3;
+        let n = 20_000;
+        let counts = |c: f64| {
+            let step = 2.0 * std::f64::consts::PI / c;
+            let q: Vec<f64> = (0..n)
+                .map(|i| {
+                    let t = i as f64 * dt;
+                    let v = 0.8 * (2.0 * std::f64::consts::PI * 0.3 * t).sin()
+                        + 0.3 * (2.0 * std::f64::consts::PI * 0.7 * t).cos();
+                    (v / step).round() * step
+                })
+                .collect();
+            JointTrajectory {
+                names: vec!["j".into()],
+                t: (0..n).map(|i| i as f64 * dt).collect(),
+                q,
+                qd: vec![0.0; n],
+                tau: vec![0.0; n],
+            }
+        };
+        let fine = choose_cutoff(&[counts((1u64 << 20) as f64)], dt);
+        let coarse = choose_cutoff(&[counts((1u64 << 14) as f64)], dt);
+        // Coarser steps are noisier: a lower cut-off, by the fifth root of the noise power ratio (2^12 -> 5.3x).
+        let ratio = 2f64.powf(12.0 / 5.0);
+        assert!((fine / coarse - ratio).abs() < 0.1 * ratio, "{fine} {coarse}");
+        assert!((CUTOFF_RANGE.0..=250.0).contains(&coarse));
+    }
+}

@@ -1,0 +1,225 @@
+//! A robot's log as its driver wrote it, for identification: the URDF's joints matched by name, on the log's own
+//! clock (its median sampling period, 100 Hz to 1 kHz), cut into segments where the stamps jump (a paused
+//! recorder), and the robot as the log shows it: the URDF's joints the log does not have, the mimic joints and those
+//! the caller fixes are welded at the position the log gives them (or 0), so a gripper's fingers ride on the hand.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use dynforge_robot::Model;
+use dynforge_robot::urdf::{self, Welds};
+use dynforge_shard::Bag;
+
+use crate::read::{ReadError, read_bag};
+use crate::resample::resample;
+use crate::samples::{JointTrajectory, from_bag_any_velocity};
+
+/// A stamp this many median periods after the previous one starts a new segment; smaller gaps (a dropped message)
+/// are interpolated over.
+pub const GAP_PERIODS: f64 = 5.0;
+
+/// Segments shorter than this many samples are left out: too short for the differences identification takes.
+pub const MIN_SEGMENT: usize = 16;
+
+/// A log read for identification.
+#[derive(Debug, Clone)]
+pub struct Log {
+    /// The log's files (one, or the files of a split rosbag2 directory in recording order).
+    pub files: Vec<PathBuf>,
+    /// The URDF document of the robot (the given file, else the log's `/robot_description`) and where it came
+    /// from: identification writes its result into it.
+    pub document: String,
+    pub source: String,
+    /// The robot as the log shows it, with its welded joints.
+    pub model: Model,
+    pub welds: Welds,
+    /// Whether the log has velocities (otherwise the segments' are zeros).
+    pub velocity_logged: bool,
+    /// The sampling period [s] every segment is on.
+    pub dt: f64,
+    /// Uniformly sampled stretches of the log, in time order, joints in the model's order.
+    pub segments: Vec<JointTrajectory>,
+    /// What was done to the log that a user should know (welded joints, gaps, resampling).
+    pub notes: Vec<String>,
+}
+
+impl Log {
+    /// Samples over all segments.
+    pub fn samples(&self) -> usize {
+        self.segments.iter().map(JointTrajectory::len).sum()
+    }
+
+    /// The log's name in messages: its file, or its directory for a split bag.
+    pub fn name(&self) -> String {
+        match self.files.len() {
+            1 => self.files[0].display().to_string(),
+            _ => self.files[0].parent().unwrap_or(&self.files[0]).display().to_string(),
+        }
+    }
+}
+
+/// Reads the log `path` (a file or a rosbag2 directory) for identification. The robot is the URDF `document` (text,
+/// source) when given, else the log's `/robot_description`; the joints named in `fixed` are welded at their mean
+/// logged position.
+pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -> Result<Log, ReadError> {
+    let (files, bag) = read_bag(path)?;
+    let file = files[0].display().to_string();
+    let content = |problem: String| ReadError::Content { file: file.clone(), problem };
+    let (document, source) = match (document, &bag.robot_description) {
+        (Some((text, source)), _) => (text.to_string(), source.to_string()),
+        (None, Some(text)) => (text.clone(), format!("{file} (/robot_description)")),
+        (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
+    };
+    let logged: Vec<String> = bag.joint_states.first().map(|m| m.name.clone()).unwrap_or_default();
+    let movable = urdf::movable_joints(&document, &source).map_err(|e| content(e.to_string()))?;
+    if let Some(f) = fixed.iter().find(|f| !movable.free.contains(f) && !movable.mimic.contains(f)) {
+        return Err(content(format!("--fix {f}: the URDF has no moving joint '{f}'")));
+    }
+    let mut notes = Vec::new();
+    let mut welds = Welds::new();
+    for name in movable.free.iter().chain(&movable.mimic) {
+        let is_mimic = movable.mimic.contains(name);
+        if !logged.contains(name) {
+            welds.insert(name.clone(), 0.0);
+            if !is_mimic {
+                notes.push(format!("joint '{name}' is not in the log: welded at 0"));
+            }
+        } else if is_mimic || fixed.contains(name) {
+            let at = mean_position(&bag, name).unwrap_or(0.0);
+            welds.insert(name.clone(), at);
+            notes.push(format!("joint '{name}' welded at {at:.6} (its mean in the log)"));
+        }
+    }
+    let model = urdf::parse_welded(&document, &source, &welds).map_err(|e| content(e.to_string()))?;
+    let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
+    let (trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
+    let (dt, segments) = segments(&trajectory, &mut notes);
+    if segments.is_empty() {
+        return Err(content(format!("no stretch of {MIN_SEGMENT} or more evenly stamped samples")));
+    }
+    Ok(Log { files, document, source, model, welds, velocity_logged, dt, segments, notes })
+}
+
+/// The mean position of joint `name` over the messages that have it.
+fn mean_position(bag: &Bag, name: &str) -> Option<f64> {
+    let values: Vec<f64> = bag
+        .joint_states
+        .iter()
+        .filter_map(|m| m.name.iter().position(|n| n == name).and_then(|c| m.position.get(c).copied()))
+        .filter(|v| v.is_finite())
+        .collect();
+    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+}
+
+/// The median sampling period of `traj` and its stretches between gaps, each on a uniform grid of that period
+/// (resampled linearly when the stamps jitter by more than 1 %).
+fn segments(traj: &JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointTrajectory>) {
+    let steps: Vec<f64> = traj.t.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return (0.0, Vec::new());
+    }
+    let mut sorted = steps.clone();
+    sorted.sort_by(f64::total_cmp);
+    let dt = sorted[sorted.len() / 2];
+    let mut cuts: Vec<usize> = vec![0];
+    cuts.extend(steps.iter().enumerate().filter(|(_, s)| **s > GAP_PERIODS * dt).map(|(i, _)| i + 1));
+    cuts.push(traj.len());
+    if cuts.len() > 2 {
+        notes.push(format!(
+            "{} gap(s) in the stamps: identified as {} separate stretches",
+            cuts.len() - 2,
+            cuts.len() - 1
+        ));
+    }
+    let mut out = Vec::new();
+    let mut short = 0;
+    let mut resampled = 0;
+    for w in cuts.windows(2) {
+        let part = slice(traj, w[0]..w[1]);
+        if part.len() < MIN_SEGMENT {
+            short += part.len();
+            continue;
+        }
+        let jitter = part.t.windows(2).any(|p| ((p[1] - p[0]) - dt).abs() > 0.01 * dt);
+        if jitter {
+            resampled += 1;
+            out.push(resample(&part, dt));
+        } else {
+            // Evenly stamped: the grid is the stamps, up to their rounding to nanoseconds.
+            let mut part = part;
+            let t0 = part.t[0];
+            part.t.iter_mut().enumerate().for_each(|(k, t)| *t = t0 + k as f64 * dt);
+            out.push(part);
+        }
+    }
+    if short > 0 {
+        notes.push(format!("{short} sample(s) in stretches shorter than {MIN_SEGMENT} samples left out"));
+    }
+    if resampled > 0 {
+        notes.push(format!("{resampled} stretch(es) with uneven stamps resampled to {:.4} ms", dt * 1e3));
+    }
+    (dt, out)
+}
+
+fn slice(traj: &JointTrajectory, range: std::ops::Range<usize>) -> JointTrajectory {
+    let n = traj.joints();
+    let rows = range.start * n..range.end * n;
+    JointTrajectory {
+        names: traj.names.clone(),
+        t: traj.t[range].to_vec(),
+        q: traj.q[rows.clone()].to_vec(),
+        qd: traj.qd[rows.clone()].to_vec(),
+        tau: traj.tau[rows].to_vec(),
+    }
+}
+
+/// The logged position range of each joint over all segments: what tells a joint that never moved.
+pub fn position_ranges(log: &Log) -> Vec<(f64, f64)> {
+    let n = log.model.dof();
+    let mut out = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
+    for s in &log.segments {
+        for (k, v) in s.q.iter().enumerate() {
+            let r = &mut out[k % n];
+            *r = (r.0.min(*v), r.1.max(*v));
+        }
+    }
+    out
+}
+
+/// The logs of one robot read together: each must show the same robot as the first (same URDF, same welds).
+pub fn read_logs(paths: &[PathBuf], document: Option<(&str, &str)>, fixed: &[String]) -> Result<Vec<Log>, ReadError> {
+    let mut logs: Vec<Log> = Vec::with_capacity(paths.len());
+    for path in paths {
+        let log = read_log(path, document, fixed)?;
+        if let Some(first) = logs.first()
+            && (first.model != log.model || first.welds.keys().ne(log.welds.keys()))
+        {
+            return Err(ReadError::Content {
+                file: log.name(),
+                problem: format!(
+                    "a log of another robot than {} (its /robot_description or its joints differ): identify one robot \
+                     at a time, or give --urdf if they are the same robot described differently",
+                    first.name()
+                ),
+            });
+        }
+        logs.push(log);
+    }
+    Ok(logs)
+}
+
+/// Joints that never move in any of `logs` (a range under `1e-3` rad, `1e-4` m), by name with their range.
+pub fn still_joints(logs: &[Log]) -> BTreeMap<String, f64> {
+    let Some(first) = logs.first() else { return BTreeMap::new() };
+    let n = first.model.dof();
+    let mut range = vec![(f64::INFINITY, f64::NEG_INFINITY); n];
+    for log in logs {
+        for (r, (lo, hi)) in range.iter_mut().zip(position_ranges(log)) {
+            *r = (r.0.min(lo), r.1.max(hi));
+        }
+    }
+    (0..n)
+        .filter(|&j| range[j].1 - range[j].0 < if first.model.is_prismatic(j) { 1e-4 } else { 1e-3 })
+        .map(|j| (first.model.joints()[j].name.clone(), range[j].1 - range[j].0))
+        .collect()
+}
