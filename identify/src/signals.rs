@@ -285,6 +285,26 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
     out
 }
 
+/// The factor by which conditioning scales white effort noise (its standard deviation): the pairing's average of
+/// neighbouring efforts, and the filter's noise bandwidth when the velocity comes from positions.
+pub fn noise_gain(source: VelocitySource, cutoff: Option<f64>, convention: EffortConvention, dt: f64) -> f64 {
+    let pairing = match convention {
+        EffortConvention::Held => 0.5f64.sqrt(),
+        EffortConvention::Sampled => (6.0f64 / 16.0).sqrt(),
+    };
+    match (source, cutoff) {
+        (VelocitySource::Positions, Some(fc)) => {
+            let f = Butterworth::new(fc, dt);
+            let len = 2 * f.pad + 1;
+            let mut impulse = vec![0.0; len];
+            impulse[len / 2] = 1.0;
+            let response = f.filtfilt(&impulse);
+            pairing * response.iter().map(|v| v * v).sum::<f64>().sqrt()
+        }
+        _ => pairing,
+    }
+}
+
 /// A 4th-order Butterworth low-pass as two biquad sections, run forward then backward (zero phase, the magnitude
 /// squared). The ends are padded by odd reflection over a few periods of the cut-off, so the filter starts and ends
 /// on the signal's own trend instead of a step.

@@ -75,6 +75,17 @@ pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -
     if let Some(f) = fixed.iter().find(|f| !movable.free.contains(f) && !movable.mimic.contains(f)) {
         return Err(content(format!("--fix {f}: the URDF has no moving joint '{f}'")));
     }
+    // A log with joints the URDF lacks, and the URDF with moving joints the log lacks: names that do not match, not
+    // a gripper left out of the arm's log.
+    let unknown: Vec<&String> =
+        logged.iter().filter(|l| !movable.free.contains(l) && !movable.mimic.contains(l)).collect();
+    let absent: Vec<&String> = movable.free.iter().filter(|m| !logged.contains(m)).collect();
+    if !unknown.is_empty() && !absent.is_empty() {
+        return Err(content(format!(
+            "the log's joints {unknown:?} are not in the URDF ({source}), whose joints {absent:?} are not in the log: \
+             the log and the URDF must name the joints alike"
+        )));
+    }
     let mut notes = Vec::new();
     let mut welds = Welds::new();
     for name in movable.free.iter().chain(&movable.mimic) {

@@ -20,6 +20,10 @@ stdin (JSON):
   hold            {joint: position} for joints held still (default: the middle of their limits, or 0)
   out             path of the bag; "split": 2 writes it as a rosbag2 directory of two files (NAME_0.mcap, NAME_1.mcap)
 stdout (JSON): {"joints": [...], "samples": n, "torque_rms": [...]}.
+
+Also: `--path ur5|panda` prints that URDF's path; `--perturb` (stdin {"urdf", "seed", "low", "high", "out"}) writes a
+"nominal" URDF with every inertial off by a random 20-30 % and no friction; `--load URDF` loads it in MuJoCo and
+prints its degrees of freedom and total mass.
 """
 import json
 import os
@@ -230,7 +234,21 @@ def perturb(req):
     json.dump({"factors": factors}, sys.stdout)
 
 
+ROBOTS = {"ur5": "ur_description/urdf/ur5_robot.urdf", "panda": "panda_description/urdf/panda.urdf"}
+
+
 def main():
+    if "--path" in sys.argv:
+        import pathlib
+        import sysconfig
+        prefix = pathlib.Path(sysconfig.get_paths()["purelib"]) / "cmeel.prefix/share/example-robot-data/robots"
+        print(prefix / ROBOTS[sys.argv[sys.argv.index("--path") + 1]])
+        return
+    if "--load" in sys.argv:
+        # MuJoCo loads the URDF (as `mujoco_model` does): its degrees of freedom and total mass.
+        m = mujoco_model(open(sys.argv[sys.argv.index("--load") + 1]).read())
+        json.dump({"nv": int(m.nv), "mass": float(m.body_mass.sum())}, sys.stdout)
+        return
     req = json.load(sys.stdin)
     if "--perturb" in sys.argv:
         perturb(req)

@@ -66,7 +66,7 @@ pub struct JointEstimate {
     pub noise: f64,
     pub correlation: f64,
     /// Torque NRMSE of the calibrated robot on the logs, and the noise floor the raw effort shows (its
-    /// high-frequency scatter), both relative to the torque's spread.
+    /// high-frequency scatter, through the conditioning), both relative to the torque's spread.
     pub nrmse: f64,
     pub noise_floor: f64,
 }
@@ -112,6 +112,8 @@ pub(crate) struct Fitted<'a> {
     pub correlation: Vec<f64>,
     pub convention: EffortConvention,
     pub logs: &'a [Log],
+    /// What conditioning does to white effort noise ([`crate::signals::noise_gain`]).
+    pub noise_gain: f64,
 }
 
 /// A link's reported parameters `(mass, com, inertia about the COM in link axes)` at coordinates `theta`.
@@ -139,8 +141,9 @@ fn reported_std(theta: &[f64], cov: &DMatrix<f64>) -> [f64; 10] {
 }
 
 /// The scatter of each joint's raw effort from sample to sample, as a fraction of its spread: a robust noise
-/// level (median absolute second difference over `0.6745 sqrt(6)`) that needs no model.
-fn noise_floor(logs: &[Log], n: usize) -> Vec<f64> {
+/// level (median absolute second difference over `0.6745 sqrt(6)`) that needs no model, times `gain` (what the
+/// conditioning leaves of white noise).
+fn noise_floor(logs: &[Log], n: usize, gain: f64) -> Vec<f64> {
     (0..n)
         .map(|j| {
             let (mut d2, mut sum, mut sum2, mut count) = (Vec::new(), 0.0, 0.0, 0usize);
@@ -161,7 +164,7 @@ fn noise_floor(logs: &[Log], n: usize) -> Vec<f64> {
             d2.sort_by(f64::total_cmp);
             let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
             let c = count as f64;
-            sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
+            gain * sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
         })
         .collect()
 }
@@ -193,7 +196,7 @@ impl Identification {
             .collect();
         let pi = dynamic_parameters(&f.calibrated);
         let nrmse = f.ne.nrmse(&pi);
-        let floors = noise_floor(f.logs, n);
+        let floors = noise_floor(f.logs, n, f.noise_gain);
         let joints = (0..n)
             .map(|j| {
                 let e = |which: usize| {
