@@ -92,7 +92,7 @@ fn main() -> Result<()> {
             n.sort_by(f64::total_cmp);
             noise.push(n[n.len() / 2]);
             weighted.push(e.labels);
-            refined.push(predictor.refine(&rec, &e)?.labels);
+            refined.push(predictor.refine(&[&rec], &e)?.labels);
         }
         let r2 = |p: &[[f64; NUM_LABELS]]| score(p, &truth, &scale).r2;
         noise.sort_by(f64::total_cmp);

@@ -46,6 +46,9 @@ impl Prior {
 #[derive(Debug, Clone)]
 pub struct Refined {
     pub labels: [f64; NUM_LABELS],
+    /// Posterior standard deviation of each label [SI] (Laplace: the Gauss-Newton Hessian at the optimum), the
+    /// prior's where the torques say nothing of it.
+    pub std: [f64; NUM_LABELS],
     /// Gauss-Newton iterations taken.
     pub iterations: usize,
 }
@@ -68,21 +71,25 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
     let objective = |pi: &DVector<f64>, z: &DVector<f64>| {
         w * (pi.dot(&(&a * pi)) - 2.0 * b.dot(pi) + c).max(0.0) + z.norm_squared()
     };
-    let mut z = DVector::zeros(NUM_LABELS);
-    let mut pi = params(&z);
-    let mut f = objective(&pi, &z);
-    let mut iterations = 0;
-    for _ in 0..100 {
-        iterations += 1;
-        // Jacobian of pi by central differences (exact to rounding for the quadratic terms, O(h^2) for m c^2).
+    // Jacobian of pi by central differences (exact to rounding for the quadratic terms, O(h^2) for m c^2).
+    let jacobian = |z: &DVector<f64>| {
         let h = 1e-3;
-        let mut g = DMatrix::zeros(pi.len(), NUM_LABELS);
+        let mut g = DMatrix::zeros(parameters_of_labels(template, &labels(z)).len(), NUM_LABELS);
         for k in 0..NUM_LABELS {
             let (mut up, mut down) = (z.clone(), z.clone());
             up[k] += h;
             down[k] -= h;
             g.set_column(k, &((params(&up) - params(&down)) / (2.0 * h)));
         }
+        g
+    };
+    let mut z = DVector::zeros(NUM_LABELS);
+    let mut pi = params(&z);
+    let mut f = objective(&pi, &z);
+    let mut iterations = 0;
+    for _ in 0..100 {
+        iterations += 1;
+        let g = jacobian(&z);
         let grad = g.transpose() * (&a * &pi - &b) * w + &z;
         let hess = g.transpose() * &a * &g * w + DMatrix::identity(NUM_LABELS, NUM_LABELS);
         let (step, _) = pseudo_solve(&hess, &(-grad), 0.0)?;
@@ -103,5 +110,13 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
             break;
         }
     }
-    Ok(Refined { labels: labels(&z), iterations })
+    // The posterior covariance of z is the inverse Hessian (its eigenvalues are at least 1: the prior).
+    let g = jacobian(&z);
+    let hess = g.transpose() * &a * &g * w + DMatrix::identity(NUM_LABELS, NUM_LABELS);
+    let (vectors, values) = crate::solve::eigen(&hess)?;
+    let std = std::array::from_fn(|k| {
+        let var: f64 = (0..NUM_LABELS).map(|e| vectors[(k, e)].powi(2) / values[e].max(1.0)).sum();
+        prior.std[k] * var.sqrt()
+    });
+    Ok(Refined { labels: labels(&z), std, iterations })
 }

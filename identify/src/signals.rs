@@ -285,6 +285,37 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
     out
 }
 
+/// The scatter of each joint's raw effort from sample to sample over `segments`, as a fraction of its spread: a
+/// robust noise level that needs no model (the median absolute second difference over `0.6745 sqrt(6)`, which is
+/// white noise's standard deviation; a smooth torque's second difference is `O(dt^2)` of its spread). What a fit's
+/// residual is judged against: a residual far above it is dynamics the model cannot take, not noise.
+pub fn effort_scatter(segments: &[&JointTrajectory]) -> Vec<f64> {
+    let n = segments.first().map_or(0, |s| s.joints());
+    (0..n)
+        .map(|j| {
+            let (mut d2, mut sum, mut sum2, mut count) = (Vec::new(), 0.0, 0.0, 0usize);
+            for s in segments {
+                let tau = |i: usize| s.tau[i * n + j];
+                for i in 0..s.len() {
+                    sum += tau(i);
+                    sum2 += tau(i) * tau(i);
+                    count += 1;
+                    if i >= 2 {
+                        d2.push((tau(i) - 2.0 * tau(i - 1) + tau(i - 2)).abs());
+                    }
+                }
+            }
+            if d2.is_empty() {
+                return 0.0;
+            }
+            d2.sort_by(f64::total_cmp);
+            let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
+            let c = count as f64;
+            sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
+        })
+        .collect()
+}
+
 /// The factor by which conditioning scales white effort noise (its standard deviation): the pairing's average of
 /// neighbouring efforts, and the filter's noise bandwidth when the velocity comes from positions.
 pub fn noise_gain(source: VelocitySource, cutoff: Option<f64>, convention: EffortConvention, dt: f64) -> f64 {

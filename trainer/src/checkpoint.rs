@@ -23,6 +23,7 @@ use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::Standardizer;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_identify::ParameterPrior;
+use dynforge_robot::Model;
 
 use crate::model::{Network, NetworkConfig};
 
@@ -39,6 +40,63 @@ pub enum CheckpointError {
     Model(#[from] crate::model::ConfigError),
     #[error("checkpoint {checkpoint} does not fit this recording: {problem}")]
     Mismatch { checkpoint: String, problem: String },
+    #[error(
+        "the log's robot is not of the family the model in {checkpoint} was trained on ({problem}): `estimate` reads \
+         robots of its training family. To calibrate this robot's URDF to its logs by physics, run `dynforge \
+         identify LOG --urdf ROBOT.urdf`"
+    )]
+    OtherFamily { checkpoint: String, problem: String },
+}
+
+/// A joint of a kinematic chain as a checkpoint records it: type, placement in its parent (URDF `xyz`, `rpy`) and
+/// axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct JointFrame {
+    pub name: String,
+    pub kind: String,
+    pub xyz: [f64; 3],
+    pub rpy: [f64; 3],
+    pub axis: [f64; 3],
+}
+
+impl JointFrame {
+    /// The chain of `robot`.
+    pub fn chain(robot: &Model) -> Vec<JointFrame> {
+        robot
+            .joints()
+            .iter()
+            .map(|j| JointFrame {
+                name: j.name.clone(),
+                kind: j.kind.urdf_name().into(),
+                xyz: j.origin.xyz,
+                rpy: j.origin.rpy,
+                axis: j.axis,
+            })
+            .collect()
+    }
+
+    /// How `other` differs from this joint, if it does (beyond 1e-6 m and 1e-6 rad: rounding of a file's numbers).
+    fn difference(&self, other: &JointFrame) -> Option<String> {
+        let placement = |f: &JointFrame| dynforge_robot::spatial::Se3::from_xyz_rpy(f.xyz, f.rpy);
+        let (a, b) = (placement(self), placement(other));
+        let unit = |v: [f64; 3]| nalgebra::Vector3::from(v).normalize();
+        if self.kind != other.kind {
+            return Some(format!("joint '{}' is {}, the family's is {}", other.name, other.kind, self.kind));
+        }
+        if (a.trans - b.trans).norm() > 1e-6 || (a.rot - b.rot).norm() > 1e-6 {
+            return Some(format!(
+                "joint '{}' sits at xyz {:?} rpy {:?}, the family's at xyz {:?} rpy {:?}",
+                other.name, other.xyz, other.rpy, self.xyz, self.rpy
+            ));
+        }
+        if (unit(self.axis) - unit(other.axis)).norm() > 1e-6 {
+            return Some(format!(
+                "joint '{}' turns about {:?}, the family's about {:?}",
+                other.name, other.axis, self.axis
+            ));
+        }
+        None
+    }
 }
 
 fn file_error(path: &Path, problem: impl ToString) -> CheckpointError {
@@ -62,6 +120,10 @@ pub struct Checkpoint {
     pub window: [usize; 3],
     /// Joint names of the robots trained on, in model order (a recording's joints are matched by these names).
     pub joints: Vec<String>,
+    /// The family's kinematic chain (every robot of a generator shares it): a robot of another family is refused.
+    /// Empty in checkpoints written before it was recorded.
+    #[serde(default)]
+    pub kinematics: Vec<JointFrame>,
     /// Jacobian feature names, in column order after q, qd, tau (transformer; empty for physics).
     pub features: Vec<String>,
     /// The generator's parameter prior the physics estimator reads evidence against (`None` for the transformer).
@@ -107,10 +169,11 @@ impl PriorRecord {
 }
 
 impl Checkpoint {
+    /// The description of a model trained on robots of `robot`'s family.
     pub fn new(
         model: NetworkConfig,
         spec: &WindowSpec,
-        joints: Vec<String>,
+        robot: &Model,
         features: Option<&JacobianFeatures>,
         s: &Standardizer,
     ) -> Self {
@@ -118,7 +181,8 @@ impl Checkpoint {
             format: FORMAT.into(),
             model,
             window: [spec.len, spec.stride, spec.ssr],
-            joints,
+            joints: robot.joints().iter().map(|j| j.name.clone()).collect(),
+            kinematics: JointFrame::chain(robot),
             features: features.map_or(Vec::new(), |f| f.entries.iter().map(|e| e.name.clone()).collect()),
             prior: None,
             examples: None,
@@ -155,21 +219,24 @@ impl Checkpoint {
         self.prior.as_ref().and_then(PriorRecord::prior)
     }
 
-    /// Refuses a recording whose robot or features differ from the training ones, naming the first difference.
-    pub fn check_fits(
-        &self,
-        dir: &Path,
-        joints: &[String],
-        features: &JacobianFeatures,
-    ) -> Result<(), CheckpointError> {
-        let mismatch = |problem: String| CheckpointError::Mismatch { checkpoint: dir.display().to_string(), problem };
-        if joints != self.joints.as_slice() {
-            return Err(mismatch(format!("joints are {joints:?}, the model was trained on {:?}", self.joints)));
+    /// Refuses a recording whose robot is not of the family trained on (joints, their placements and axes) or, for
+    /// the transformer, whose features differ, naming the first difference.
+    pub fn check_fits(&self, dir: &Path, robot: &Model, features: &JacobianFeatures) -> Result<(), CheckpointError> {
+        let checkpoint = dir.display().to_string();
+        let other = |problem: String| CheckpointError::OtherFamily { checkpoint: checkpoint.clone(), problem };
+        let joints: Vec<String> = robot.joints().iter().map(|j| j.name.clone()).collect();
+        if joints != self.joints {
+            return Err(other(format!("its joints are {joints:?}, the family's {:?}", self.joints)));
+        }
+        let chain = JointFrame::chain(robot);
+        if let Some(d) = self.kinematics.iter().zip(&chain).find_map(|(a, b)| a.difference(b)) {
+            return Err(other(d));
         }
         if matches!(self.model, NetworkConfig::Physics(_)) {
-            // Physics reads the torques through the robot's own kinematics; the joints are all it must share.
+            // Physics reads the torques through the robot's own kinematics; the chain is all it must share.
             return Ok(());
         }
+        let mismatch = |problem: String| CheckpointError::Mismatch { checkpoint: checkpoint.clone(), problem };
         let names: Vec<&str> = features.entries.iter().map(|e| e.name.as_str()).collect();
         if names != self.features.iter().map(String::as_str).collect::<Vec<_>>() {
             let first = names

@@ -61,7 +61,8 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     let source = PhysicsSource { generator: cfg.clone(), seed: 1234, examples: record };
     let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
     let model = PhysicsConfig { hidden: 128, layers: 2, ..PhysicsConfig::new(examples.shape()[1]) };
-    let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, vec![], None, examples.standardizer());
+    let family = generate(&cfg, 4, 0).unwrap().model;
+    let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, &family, None, examples.standardizer());
     ck.prior = Some(PriorRecord::new(&prior));
     let out = tempfile::tempdir().unwrap();
     let train_cfg =

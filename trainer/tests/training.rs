@@ -65,7 +65,7 @@ fn checkpoint(c: &Corpus, model: TransformerConfig) -> Checkpoint {
     let robot = dynforge_robot::generator::generate(&Default::default(), 0, 0).unwrap().model;
     let features = JacobianFeatures::new(&robot);
     let mut ck =
-        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, vec![], Some(&features), &c.standardizer);
+        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, &robot, Some(&features), &c.standardizer);
     ck.validation_fraction = 0.5;
     ck
 }
@@ -293,7 +293,7 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     c.standardizer = Standardizer::fit(&c.windows, &c.train);
     let model = TransformerConfig { inputs: c.standardizer.columns.len(), seq_len: 8, ..small_model() };
     let ck =
-        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, vec![], Some(&features), &c.standardizer);
+        Checkpoint::new(NetworkConfig::Transformer(model), &c.windows.spec, &robot, Some(&features), &c.standardizer);
     // Before epoch 1 the other shards (and a broken file) appear.
     let mut calls = 0;
     let mut skipped = Vec::new();

@@ -77,6 +77,13 @@ pub struct Report {
     pub windows: Scores,
     /// Per validation robot, its windows' predictions averaged.
     pub robots: Scores,
+    /// Per validation recording (one log of a robot), and the mean number of recordings per validation robot:
+    /// the error of an estimate from one log and from all of a robot's, which `estimate` takes as its prior spread
+    /// (the physics estimator; `None` for the transformer).
+    #[serde(default)]
+    pub recordings: Option<Scores>,
+    #[serde(default)]
+    pub logs_per_robot: f64,
     pub torque: Option<TorqueCheck>,
     pub identification: Option<IdentificationCheck>,
 }
@@ -98,6 +105,12 @@ impl Report {
         out.push_str(&tables::tables(&self.robots, "Overall per robot"));
         let groups: Vec<String> = tables::group_r2(&self.robots).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
         out.push_str(&format!("\nMean R2 per group: {}\n", groups.join(", ")));
+        if let Some(r) = &self.recordings {
+            out.push_str(&format!(
+                "\nPer recording (each validation log alone, {} logs): R2 {:.4}, RMSE {:.4}\n",
+                r.count, r.r2, r.rmse
+            ));
+        }
         if let Some(t) = &self.torque {
             out.push_str(&format!(
                 "\n**Torque check** ({} validation recordings; inverse dynamics vs recorded torque, NRMSE per joint)\n\n",
@@ -136,6 +149,8 @@ pub struct Validation {
     pub robot_ids: Vec<u64>,
     pub robot_predicted: Vec<[f64; NUM_LABELS]>,
     pub robot_truth: Vec<[f64; NUM_LABELS]>,
+    /// Per recording (one log each), when the estimator reads recordings whole: predictions and truths.
+    pub recordings: Option<(Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>)>,
 }
 
 /// The report of `estimator` (its checkpoint `name` at `epoch`) from its predictions on the validation split
@@ -173,7 +188,18 @@ pub fn report(
             identification::check(estimator, data, n, &training, &errors, &mut progress)?
         }
     };
-    Ok(Report { checkpoint: name.to_string(), epoch, windows, robots, torque, identification })
+    let recordings = v.recordings.as_ref().map(|(p, t)| score(p, t, &label_std));
+    let logs_per_robot = v.recordings.as_ref().map_or(0.0, |(p, _)| p.len() as f64 / v.robot_ids.len().max(1) as f64);
+    Ok(Report {
+        checkpoint: name.to_string(),
+        epoch,
+        windows,
+        robots,
+        recordings,
+        logs_per_robot,
+        torque,
+        identification,
+    })
 }
 
 /// Averages predictions per robot: robot ids, predictions, truths (in robot order).

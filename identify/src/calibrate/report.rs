@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, Matrix3};
 
 use crate::consistent::{CoordinatePrior, Solution, friction_coordinate, link_coordinate};
 use crate::normal::NormalEquations;
-use crate::signals::{EffortConvention, VelocityChoice, VelocitySource};
+use crate::signals::{EffortConvention, VelocityChoice, VelocitySource, effort_scatter};
 use crate::solve::LeastSquares;
 use crate::standard::{self, COORDINATES};
 
@@ -140,35 +140,6 @@ fn reported_std(theta: &[f64], cov: &DMatrix<f64>) -> [f64; 10] {
     std::array::from_fn(|r| c[(r, r)].max(0.0).sqrt())
 }
 
-/// The scatter of each joint's raw effort from sample to sample, as a fraction of its spread: a robust noise
-/// level (median absolute second difference over `0.6745 sqrt(6)`) that needs no model, times `gain` (what the
-/// conditioning leaves of white noise).
-fn noise_floor(logs: &[Log], n: usize, gain: f64) -> Vec<f64> {
-    (0..n)
-        .map(|j| {
-            let (mut d2, mut sum, mut sum2, mut count) = (Vec::new(), 0.0, 0.0, 0usize);
-            for s in logs.iter().flat_map(|l| &l.segments) {
-                let tau = |i: usize| s.tau[i * n + j];
-                for i in 0..s.len() {
-                    sum += tau(i);
-                    sum2 += tau(i) * tau(i);
-                    count += 1;
-                    if i >= 2 {
-                        d2.push((tau(i) - 2.0 * tau(i - 1) + tau(i - 2)).abs());
-                    }
-                }
-            }
-            if d2.is_empty() {
-                return 0.0;
-            }
-            d2.sort_by(f64::total_cmp);
-            let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
-            let c = count as f64;
-            gain * sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
-        })
-        .collect()
-}
-
 impl Identification {
     pub(crate) fn new(f: Fitted) -> Self {
         let n = f.model.dof();
@@ -196,7 +167,8 @@ impl Identification {
             .collect();
         let pi = dynamic_parameters(&f.calibrated);
         let nrmse = f.ne.nrmse(&pi);
-        let floors = noise_floor(f.logs, n, f.noise_gain);
+        let segments: Vec<&dynforge_recording::JointTrajectory> = f.logs.iter().flat_map(|l| &l.segments).collect();
+        let floors: Vec<f64> = effort_scatter(&segments).iter().map(|s| f.noise_gain * s).collect();
         let joints = (0..n)
             .map(|j| {
                 let e = |which: usize| {

@@ -132,6 +132,7 @@ fn validate_windows(predictor: &Predictor, w: CachedWindows, validation: impl Fn
         robot_ids,
         robot_predicted,
         robot_truth,
+        recordings: None,
     }
 }
 
@@ -145,6 +146,9 @@ fn validate_physics(
     let window_predicted = predictor.predict_evidence(&ids.iter().map(|&i| w.get(i)).collect::<Vec<_>>())?;
     let robots = set.recordings.per_robot(&validation);
     let robot_predicted = predictor.predict_evidence(&robots.iter().map(|(_, _, e)| e.clone()).collect::<Vec<_>>())?;
+    let r = &set.recordings;
+    let logs: Vec<usize> = (0..r.len()).filter(|&i| validation(r.robots[i])).collect();
+    let log_predicted = predictor.predict_evidence(&logs.iter().map(|&i| r.get(i)).collect::<Vec<_>>())?;
     Ok(Validation {
         robots: w.robots.clone(),
         labels: w.labels.clone(),
@@ -153,6 +157,7 @@ fn validate_physics(
         robot_ids: robots.iter().map(|(r, _, _)| *r).collect(),
         robot_predicted,
         robot_truth: robots.iter().map(|(_, y, _)| *y).collect(),
+        recordings: Some((log_predicted, logs.iter().map(|&i| r.labels[i]).collect())),
     })
 }
 

@@ -46,6 +46,8 @@ pub enum InferenceError {
     Recording(#[from] RecordingError),
     #[error(transparent)]
     Evaluation(#[from] EvaluationError),
+    #[error("no recording to estimate from")]
+    NoRecording,
 }
 
 /// An estimate from one robot's recordings.
@@ -53,8 +55,15 @@ pub enum InferenceError {
 pub struct Estimate {
     /// The estimated labels [SI].
     pub labels: [f64; NUM_LABELS],
-    /// Standard deviation of the per-window predictions [SI] (0 with one window).
+    /// The estimator's error for an estimate from this many logs, per label [SI]: its validation RMSE (from the
+    /// `report.json` of `evaluate`), else the training labels' spread. A standard deviation that holds over the
+    /// validation robots, and the prior the refinement by the log's torques starts from.
     pub spread: [f64; NUM_LABELS],
+    /// Whether `spread` came from an evaluation rather than the training labels.
+    pub spread_from_validation: bool,
+    /// The family's spread per label [SI] (the training labels' standard deviation): what is known of a robot
+    /// from its family alone, against which a log's information is measured.
+    pub family: [f64; NUM_LABELS],
     pub windows: usize,
     /// Physics estimator: each joint's torque noise as an NRMSE, as the logs' residuals show it (the largest over
     /// the logs; the evidence is weighted by it). Empty for the transformer.
@@ -68,23 +77,36 @@ pub type WholeRecording = (Evidence, Vec<f64>);
 #[derive(Debug, Clone)]
 pub struct Refinement {
     pub labels: [f64; NUM_LABELS],
+    /// Posterior standard deviation per label [SI]: the estimate's spread where the torques cannot tell the label.
+    pub std: [f64; NUM_LABELS],
     /// Identifiable parameter combinations in the recording.
     pub identifiable: usize,
-    /// Whether the prior's spread came from an evaluation (`report.json`) rather than the training labels.
-    pub prior_from_validation: bool,
     /// Torque NRMSE on the recording itself, of the network's estimate and of the refined labels (each as the
     /// physical robot the URDF gets).
     pub nrmse_network: f64,
     pub nrmse_refined: f64,
 }
 
-/// The estimator's per-robot validation RMSE per label [SI], from the `report.json` that `evaluate` leaves in `dir`.
-fn validation_rmse(dir: &Path) -> Option<[f64; NUM_LABELS]> {
+/// The estimator's validation RMSE per label [SI] for an estimate from `logs` logs of a robot, from the
+/// `report.json` that `evaluate` leaves in `dir`: the per-recording RMSE for one log, the per-robot RMSE for as many
+/// logs as a validation robot has, geometrically in between (errors of independent logs fall like a power of
+/// their number).
+fn validation_rmse(dir: &Path, logs: usize) -> Option<[f64; NUM_LABELS]> {
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
-    let targets = report.get("robots")?.get("targets")?.as_array()?;
-    let values: Vec<f64> = targets.iter().filter_map(|t| t.get("rmse_si")?.as_f64()).collect();
-    let rmse: [f64; NUM_LABELS] = values.try_into().ok()?;
-    rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
+    let rmse = |protocol: &str| -> Option<[f64; NUM_LABELS]> {
+        let targets = report.get(protocol)?.get("targets")?.as_array()?;
+        let values: Vec<f64> = targets.iter().filter_map(|t| t.get("rmse_si")?.as_f64()).collect();
+        let rmse: [f64; NUM_LABELS] = values.try_into().ok()?;
+        rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
+    };
+    let robot = rmse("robots")?;
+    let Some(one) = rmse("recordings") else { return Some(robot) };
+    let per_robot = report.get("logs_per_robot").and_then(|v| v.as_f64()).unwrap_or(1.0);
+    if per_robot <= 1.0 {
+        return Some(one);
+    }
+    let w = ((logs.max(1) as f64).ln() / per_robot.ln()).clamp(0.0, 1.0);
+    Some(std::array::from_fn(|k| one[k] * (robot[k] / one[k]).powf(w)))
 }
 
 /// A loaded checkpoint, ready to estimate recordings.
@@ -143,8 +165,7 @@ impl Predictor {
     /// Checks that `rec` fits the checkpoint and has a window at least.
     fn check(&self, rec: &Recording) -> Result<JacobianFeatures, InferenceError> {
         let features = JacobianFeatures::new(&rec.model);
-        let joints: Vec<String> = rec.model.joints().iter().map(|j| j.name.clone()).collect();
-        self.checkpoint.check_fits(&self.dir, &joints, &features)?;
+        self.checkpoint.check_fits(&self.dir, &rec.model, &features)?;
         let spec = self.checkpoint.window_spec();
         if spec.windows(rec.trajectory.len()).is_empty() {
             return Err(InferenceError::Recording(RecordingError {
@@ -204,32 +225,39 @@ impl Predictor {
         }
         let n = per_window.len() as f64;
         let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
-        let spread =
-            std::array::from_fn(|k| (per_window.iter().map(|y| (y[k] - mean[k]).powi(2)).sum::<f64>() / n).sqrt());
         let labels = match whole {
             Some(e) => self.predict_evidence(&[e])?[0],
             None => mean,
         };
-        Ok(Estimate { labels, spread, windows: per_window.len(), noise })
+        let validated = validation_rmse(&self.dir, recs.len());
+        let family = std::array::from_fn(|k| self.checkpoint.label_std[k]);
+        Ok(Estimate {
+            labels,
+            spread: validated.unwrap_or(family),
+            spread_from_validation: validated.is_some(),
+            family,
+            windows: per_window.len(),
+            noise,
+        })
     }
 
-    /// The estimate `e` of the recording `p` refined by physics: the labels that best explain the recording's
-    /// torques (least squares on the regressor) with the estimate as prior. The prior's spread per label is the
-    /// estimator's per-robot validation RMSE from `report.json` in the checkpoint directory (written by `evaluate`),
-    /// or the training labels' spread when there is none.
-    pub fn refine(&self, p: &Recording, e: &Estimate) -> Result<Refinement, InferenceError> {
-        let ne = normal_equations(p)?;
+    /// The estimate `e` of the robot of recordings `recs` refined by physics: the labels that best explain their
+    /// torques (least squares on the regressor) with the estimate as prior, its spread as the prior's.
+    pub fn refine(&self, recs: &[&Recording], e: &Estimate) -> Result<Refinement, InferenceError> {
+        let p = recs.first().ok_or(InferenceError::NoRecording)?;
+        let mut ne = normal_equations(p)?;
+        for other in &recs[1..] {
+            ne.merge(&normal_equations(other)?);
+        }
         let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
-        let validated = validation_rmse(&self.dir);
-        let std = validated.unwrap_or_else(|| std::array::from_fn(|k| self.checkpoint.label_std[k]));
-        let prior = Prior::new(e.labels, &std).map_err(|err| recording_error(p, err))?;
+        let prior = Prior::new(e.labels, &e.spread).map_err(|err| recording_error(p, err))?;
         let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|err| recording_error(p, err))?;
         // Scored as the written URDF will be: projected to a physical robot.
         let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| ne.mean_nrmse(&pi));
         Ok(Refinement {
             labels: refined.labels,
+            std: refined.std,
             identifiable: ls.rank,
-            prior_from_validation: validated.is_some(),
             nrmse_network: nrmse(&e.labels)?,
             nrmse_refined: nrmse(&refined.labels)?,
         })

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use dynforge_dataset::evaluation::recording::recording_error;
 use dynforge_proto::{LABELS, NUM_LABELS};
+use dynforge_recording::Recording;
 use dynforge_robot::{parameters, urdf};
 
 use super::{Estimate, InferenceError, Predictor, Refinement};
@@ -41,11 +42,14 @@ pub fn estimate_to_urdf(
     let (rec, estimate) = predictor.estimate_file(log, Some(&model))?;
     let (refinement, warning) = match refine {
         false => (None, None),
-        true => match predictor.refine(&rec, &estimate) {
+        true => match predictor.refine(&[&rec], &estimate) {
             Ok(r) => (Some(r), None),
             Err(e) => (None, Some(format!("the estimate is not refined by physics: {e}"))),
         },
     };
+    if let Some(r) = &refinement {
+        predictive_check(dir, &rec, r)?;
+    }
     let wanted = refinement.as_ref().map_or(estimate.labels, |r| r.labels);
     let (robot, projections) =
         parameters::model_with_labels(&rec.model, &wanted).map_err(|e| recording_error(&rec, e))?;
@@ -58,22 +62,62 @@ pub fn estimate_to_urdf(
     Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, notes, urdf })
 }
 
+/// Refined torque NRMSE on the log over its measured noise at which the robot is taken not to be one of the
+/// family: a robot of it is explained to its noise; one whose dynamics the family's parameters cannot take is not.
+pub const PREDICTIVE_RATIO: f64 = 20.0;
+
+/// A refined torque NRMSE under this is explained whatever the measured noise.
+pub const EXPLAINED_NRMSE: f64 = 0.05;
+
+/// The posterior predictive check: an error when the refined estimate leaves the log's torques far above their
+/// noise (measured without a model, from the efforts' scatter between samples: the residual would absorb what the
+/// model misses), i.e. the robot's dynamics are not those of the family the model was trained on (its kinematics
+/// already passed).
+fn predictive_check(dir: &Path, rec: &Recording, r: &Refinement) -> Result<(), InferenceError> {
+    let noise = dynforge_identify::signals::effort_scatter(&[&rec.trajectory]).into_iter().fold(0.0f64, f64::max);
+    if r.nrmse_refined > EXPLAINED_NRMSE && r.nrmse_refined > PREDICTIVE_RATIO * noise {
+        return Err(InferenceError::Checkpoint(crate::checkpoint::CheckpointError::OtherFamily {
+            checkpoint: dir.display().to_string(),
+            problem: format!(
+                "{}: the family's best parameters leave {:.3} of the torques' spread unexplained, where their noise \
+                 is {noise:.1e}",
+                rec.path.display(),
+                r.nrmse_refined
+            ),
+        }));
+    }
+    Ok(())
+}
+
 impl EstimateReport {
+    /// Each label's standard deviation as reported: the refinement's posterior, else the estimator's spread.
+    pub fn spread(&self) -> [f64; NUM_LABELS] {
+        self.refinement.as_ref().map_or(self.estimate.spread, |r| r.std)
+    }
+
+    /// Whether the log decided label `k`: its spread under half the family's (else the value is about what any
+    /// robot of the family has).
+    pub fn from_log(&self, k: usize) -> bool {
+        self.spread()[k] < 0.5 * self.estimate.family[k]
+    }
+
     pub fn json(&self) -> serde_json::Value {
         let e = &self.estimate;
         let parameters: serde_json::Map<String, serde_json::Value> = LABELS
             .iter()
             .enumerate()
             .map(|(k, l)| {
+                let decided = if self.from_log(k) { "log" } else { "family" };
                 let v = serde_json::json!({
-                    "value": self.values[k], "estimator": e.labels[k], "spread": e.spread[k], "unit": l.kind.unit()
+                    "value": self.values[k], "estimator": e.labels[k], "spread": self.spread()[k],
+                    "estimator_spread": e.spread[k], "decided": decided, "unit": l.kind.unit()
                 });
                 (l.name.to_string(), v)
             })
             .collect();
         let refined = self.refinement.as_ref().map(|r| {
             serde_json::json!({
-                "identifiable": r.identifiable, "prior_from_validation": r.prior_from_validation,
+                "identifiable": r.identifiable,
                 "torque_nrmse_estimator": r.nrmse_network, "torque_nrmse_refined": r.nrmse_refined,
             })
         });
@@ -96,27 +140,25 @@ impl std::fmt::Display for EstimateReport {
                 joints.join(" ")
             )?;
         }
-        writeln!(f, "{:<12} {:>12} {:>12} {:>12}  unit", "parameter", "estimate", "estimator", "spread")?;
+        writeln!(
+            f,
+            "{:<12} {:>12} {:>12} {:>12}  unit   (spread: standard deviation; * the log cannot tell it from the family's \
+             spread)",
+            "parameter", "estimate", "estimator", "spread"
+        )?;
+        let spread = self.spread();
         for (k, l) in LABELS.iter().enumerate() {
-            writeln!(
-                f,
-                "{:<12} {:>12.6} {:>12.6} {:>12.6}  {}",
-                l.name,
-                self.values[k],
-                e.labels[k],
-                e.spread[k],
-                l.kind.unit()
-            )?;
+            let mark = if self.from_log(k) { " " } else { "*" };
+            let (v, est, unit) = (self.values[k], e.labels[k], l.kind.unit());
+            writeln!(f, "{:<12} {v:>12.6} {est:>12.6} {:>12.6}{mark} {unit}", l.name, spread[k])?;
         }
+        let source = if e.spread_from_validation { "the checkpoint's report.json" } else { "the training labels" };
         match (&self.refinement, &self.warning) {
             (Some(r), _) => writeln!(
                 f,
-                "refined by physics ({} identifiable parameter combinations; prior spread from {}): torque NRMSE on \
-                 this log {:.4} (estimator alone {:.4})",
-                r.identifiable,
-                if r.prior_from_validation { "the checkpoint's report.json" } else { "the training labels" },
-                r.nrmse_refined,
-                r.nrmse_network
+                "refined by physics ({} identifiable parameter combinations; the estimator's spread from {source}): \
+                 torque NRMSE on this log {:.4} (estimator alone {:.4})",
+                r.identifiable, r.nrmse_refined, r.nrmse_network
             )?,
             (None, Some(_)) => writeln!(f, "estimator output only (not refined: see the warning above)")?,
             (None, None) => writeln!(f, "estimator output only (--no-refine)")?,

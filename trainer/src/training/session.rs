@@ -176,7 +176,7 @@ impl Session<'_> {
     ) -> Result<Trained, SessionError> {
         let spec = previous.as_ref().map_or(self.recipe.window, Checkpoint::window_spec);
         let split = self.split(&previous);
-        let (windows, features, joints) = self.windows(&spec, observer)?;
+        let (windows, features, robot) = self.windows(&spec, observer)?;
         // After the first shard exists, so that `shards/` of a generate directory is what is followed.
         let mut follower = ShardFollower::new(&shard_dir(self.data));
         let mut corpus =
@@ -193,7 +193,7 @@ impl Session<'_> {
                 let model = self.recipe.model.transformer(standardizer.columns.len(), spec.len);
                 model.check().map_err(TrainError::from)?;
                 let mut c =
-                    Checkpoint::new(NetworkConfig::Transformer(model), &spec, joints, Some(&features), &standardizer);
+                    Checkpoint::new(NetworkConfig::Transformer(model), &spec, &robot, Some(&features), &standardizer);
                 self.stamp(&mut c, split);
                 c
             }
@@ -220,10 +220,10 @@ impl Session<'_> {
         &self,
         spec: &WindowSpec,
         observer: &mut dyn SessionObserver,
-    ) -> Result<(CachedWindows, JacobianFeatures, Vec<String>), SessionError> {
+    ) -> Result<(CachedWindows, JacobianFeatures, dynforge_robot::Model), SessionError> {
         if self.follow {
             let robot = self.wait_for_robot(observer)?;
-            return Ok((CachedWindows::new(*spec), JacobianFeatures::new(&robot), joint_names(&robot)));
+            return Ok((CachedWindows::new(*spec), JacobianFeatures::new(&robot), robot));
         }
         let robot = dataset_robot(self.data)?;
         let features = JacobianFeatures::new(&robot);
@@ -239,7 +239,7 @@ impl Session<'_> {
             w.width,
             if w.hit { "from the cache" } else { "built and cached" }
         ));
-        Ok((w, features, joint_names(&robot)))
+        Ok((w, features, robot))
     }
 
     /// Adds the shards a followed generation writes until both splits have windows (the statistics need both).
@@ -378,7 +378,7 @@ impl Session<'_> {
                 model.check().map_err(TrainError::from)?;
                 let robot = dataset_robot(self.data)?;
                 let std = examples.standardizer().clone();
-                let mut c = Checkpoint::new(NetworkConfig::Physics(model), spec, joint_names(&robot), None, &std);
+                let mut c = Checkpoint::new(NetworkConfig::Physics(model), spec, &robot, None, &std);
                 c.prior = Some(PriorRecord::new(examples.prior()));
                 self.stamp(&mut c, split);
                 c
@@ -411,10 +411,6 @@ impl Session<'_> {
             }
         }
     }
-}
-
-fn joint_names(robot: &dynforge_robot::Model) -> Vec<String> {
-    robot.joints().iter().map(|j| j.name.clone()).collect()
 }
 
 fn skip(observer: &mut dyn SessionObserver, skipped: &[Skipped]) {
