@@ -61,7 +61,10 @@ pub struct InfoArgs {
 }
 
 pub fn info(args: InfoArgs) -> Result<()> {
-    print!("{}", dynforge_recording::info::Info::of(&args.log)?);
+    let info = dynforge_recording::info::Info::of(&args.log)?;
+    print!("{info}");
+    let described = matches!(info.robot, Some(Ok(_)));
+    print!("{}", dynforge_identify::calibrate::Readiness::of(&args.log, described));
     Ok(())
 }
 

@@ -19,6 +19,15 @@ use clap::{Parser, Subcommand};
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
+unsafe extern "C" {
+    /// mimalloc's option setter (exported by the library the `mimalloc` crate links).
+    fn mi_option_set(option: std::ffi::c_int, value: std::ffi::c_long);
+}
+
+/// `mi_option_purge_delay` in the option enum of mimalloc v3, the version `libmimalloc-sys` builds (the crate has no
+/// constant for it).
+const MI_OPTION_PURGE_DELAY: std::ffi::c_int = 15;
+
 /// dynforge: learn the dynamic parameters of robot manipulators (mass, inertia, centre of mass, joint friction)
 /// from joint trajectories.
 #[derive(Parser)]
@@ -42,7 +51,8 @@ enum Command {
     Verify(generate::VerifyArgs),
     /// Merge the partition directories of one run (`generate --partition i/n`) into the single-host directory.
     Merge(generate::MergeArgs),
-    /// What a log holds (shard or ROS 2 bag, a file or a rosbag2 directory): joint states, rate, robot, labels.
+    /// What a log holds (shard or ROS 2 bag, a file or a rosbag2 directory): joint states, rate, robot, labels, and
+    /// which commands can take it (identify, estimate) or why not.
     Info(dataset::InfoArgs),
     /// Inspect a dataset of shards.
     #[command(subcommand)]
@@ -53,9 +63,11 @@ enum Command {
     /// Score a checkpoint on its validation robots: the paper's tables, per-robot scores, the torque check and
     /// the identification check (network, physics and hybrid side by side).
     Evaluate(evaluate::EvaluateArgs),
-    /// Estimate a robot's parameters from a recording (shard or ROS 2 bag), refined by physics, and write its URDF.
+    /// Estimate the parameters of a robot of the family a model was trained on from its log (shard or ROS 2 bag),
+    /// refined by its torques, and write its URDF; a robot of another family is refused (`identify` serves it).
     Estimate(estimate::EstimateArgs),
-    /// Calibrate a robot's URDF to its logs by physics alone (least squares on the regressor, no network).
+    /// Calibrate any serial arm's URDF to its logs (ROS 2 bags) by physics: every link's mass, centre of mass and
+    /// inertia (physically valid) and every joint's friction, each with its standard deviation; no training needed.
     Identify(identify::IdentifyArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(pipeline::PipelineArgs),
@@ -72,6 +84,11 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Memory freed is kept for a second before it goes back to the system, not 10 ms: reading an hour-long log
+    // decompresses megabyte chunks one after another, and each would otherwise be faulted in and zeroed anew (a
+    // quarter of `identify`'s time went to the kernel clearing pages).
+    // SAFETY: setting an option of the allocator, which it reads when it next purges.
+    unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Robot(args) => robot::run(args),

@@ -63,8 +63,9 @@ pub enum EvidenceError {
 pub fn generator_prior(cfg: &GeneratorConfig, seed: u64) -> Result<ParameterPrior, EvidenceError> {
     let seed = draw_seed(seed, Draw::Prior);
     let ids: Vec<u64> = (0..PRIOR_ROBOTS).collect();
-    let robots =
-        crate::parallel::map_in_order(&ids, |&id| generate(cfg, seed, id).map(|r| dynamic_parameters(&r.model)));
+    let robots = dynforge_proto::parallel::map_in_order(&ids, |&id| {
+        generate(cfg, seed, id).map(|r| dynamic_parameters(&r.model))
+    });
     let samples =
         robots.into_iter().collect::<Result<Vec<_>, _>>().map_err(|e| EvidenceError::Generator(e.to_string()))?;
     ParameterPrior::fit(&samples).map_err(|e| EvidenceError::Generator(e.to_string()))

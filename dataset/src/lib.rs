@@ -16,7 +16,6 @@ pub mod examples;
 pub mod features;
 pub mod metrics;
 pub mod normalize;
-pub mod parallel;
 pub mod prepare;
 pub mod split;
 pub mod window;

@@ -64,6 +64,18 @@ impl CoordinatePrior {
         }
         Ok(CoordinatePrior { mean, std })
     }
+
+    /// A robot drawn from this prior: `model`'s kinematics with each link's inertial at coordinates drawn from
+    /// their Gaussians (`normal` gives standard normal numbers) and no friction, as a user's URDF states none. What
+    /// a calibration's spreads are tested against: a robot whose truth the prior holds as it claims to.
+    pub fn draw(&self, model: &Model, mut normal: impl FnMut() -> f64) -> Result<Model, IdentifyError> {
+        let n = model.dof();
+        let x = DVector::from_fn(self.mean.len(), |k, _| match k < COORDINATES * n {
+            true => self.mean[k] + self.std[k] * normal(),
+            false => 0.0,
+        });
+        crate::calibrate::model_with(model, &parameters(n, &x))
+    }
 }
 
 /// Length of the coordinate vector of an `n`-joint robot.

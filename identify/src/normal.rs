@@ -57,27 +57,14 @@ impl NormalEquations {
             return Err(IdentifyError::Dof(traj.joints().min(model.dof()), n));
         }
         let mut data = Data::new(model);
-        let support = row_support(n);
+        let mut rows = BlockedRows::new(n, 1);
         for_each(model, &mut data, traj, range, |_, y, qd, tau| {
-            for j in 0..n {
-                if qd[j].abs() < REST_SPEED {
-                    continue;
-                }
-                accumulate_row(&mut self.a[j], y, j, &support[j]);
-                self.add_torque(j, y, &support[j], tau[j]);
+            for j in (0..n).filter(|&j| qd[j].abs() >= REST_SPEED) {
+                rows.push(j, y, &tau[j..=j]);
             }
         });
+        self.merge(&rows.finish()[0]);
         Ok(())
-    }
-
-    /// Adds joint `j`'s torque `tau` of a row (its regressor row `y`, non-zero in `support`) to the right-hand side.
-    pub(crate) fn add_torque(&mut self, j: usize, y: &DMatrix<f64>, support: &[usize], tau: f64) {
-        for &r in support {
-            self.b[j][r] += y[(j, r)] * tau;
-        }
-        self.c[j] += tau * tau;
-        self.sum[j] += tau;
-        self.n[j] += 1;
     }
 
     /// The normal equations of `traj` alone.
@@ -152,13 +139,95 @@ impl NormalEquations {
     }
 }
 
-/// `a += y_j^T y_j` over the columns `support` of row `j` of `y`.
-pub(crate) fn accumulate_row(a: &mut DMatrix<f64>, y: &DMatrix<f64>, j: usize, support: &[usize]) {
-    for &r in support {
-        let yr = y[(j, r)];
-        for &c in support {
-            a[(r, c)] += yr * y[(j, c)];
+/// Rows of the regressor gathered per joint in blocks of [`BLOCK`], so that a block's Gram matrix is one matrix
+/// product (a vectorised kernel) rather than a rank-one update per row; `k` right-hand sides (the effort
+/// conventions) share the rows. Each joint's row is non-zero only on its `support` (links `j..` and its friction),
+/// so the blocks are that narrow and are scattered into the full normal equations at the end.
+pub(crate) struct BlockedRows {
+    support: Vec<Vec<usize>>,
+    rows: Vec<faer::Mat<f64>>,
+    taus: Vec<faer::Mat<f64>>,
+    filled: Vec<usize>,
+    gram: Vec<faer::Mat<f64>>,
+    cross: Vec<faer::Mat<f64>>,
+    equations: Vec<NormalEquations>,
+}
+
+/// Rows per block: enough for the product to run at the kernel's speed, few enough to stay in cache.
+const BLOCK: usize = 64;
+
+impl BlockedRows {
+    pub(crate) fn new(dof: usize, k: usize) -> Self {
+        let support = row_support(dof);
+        let s = |j: usize| support[j].len();
+        BlockedRows {
+            rows: (0..dof).map(|j| faer::Mat::zeros(BLOCK, s(j))).collect(),
+            taus: (0..dof).map(|_| faer::Mat::zeros(BLOCK, k)).collect(),
+            filled: vec![0; dof],
+            gram: (0..dof).map(|j| faer::Mat::zeros(s(j), s(j))).collect(),
+            cross: (0..dof).map(|j| faer::Mat::zeros(s(j), k)).collect(),
+            equations: vec![NormalEquations::new(dof); k],
+            support,
         }
+    }
+
+    /// Adds row `j` of `y` with its torque under each right-hand side.
+    pub(crate) fn push(&mut self, j: usize, y: &DMatrix<f64>, tau: &[f64]) {
+        let r = self.filled[j];
+        for (c, &col) in self.support[j].iter().enumerate() {
+            self.rows[j][(r, c)] = y[(j, col)];
+        }
+        for (e, (ne, &t)) in self.equations.iter_mut().zip(tau).enumerate() {
+            self.taus[j][(r, e)] = t;
+            ne.c[j] += t * t;
+            ne.sum[j] += t;
+            ne.n[j] += 1;
+        }
+        self.filled[j] += 1;
+        if self.filled[j] == BLOCK {
+            self.flush(j);
+        }
+    }
+
+    fn flush(&mut self, j: usize) {
+        let m = self.filled[j];
+        if m == 0 {
+            return;
+        }
+        use faer::linalg::matmul::matmul;
+        use faer::{Accum, Par};
+        let rows = self.rows[j].as_ref().subrows(0, m);
+        matmul(self.gram[j].as_mut(), Accum::Add, rows.transpose(), rows, 1.0, Par::Seq);
+        matmul(
+            self.cross[j].as_mut(),
+            Accum::Add,
+            rows.transpose(),
+            self.taus[j].as_ref().subrows(0, m),
+            1.0,
+            Par::Seq,
+        );
+        self.filled[j] = 0;
+    }
+
+    /// The normal equations of the rows pushed, one per right-hand side.
+    pub(crate) fn finish(mut self) -> Vec<NormalEquations> {
+        for j in 0..self.support.len() {
+            self.flush(j);
+            let support = &self.support[j];
+            for ne in &mut self.equations {
+                for (r, &pr) in support.iter().enumerate() {
+                    for (c, &pc) in support.iter().enumerate() {
+                        ne.a[j][(pr, pc)] += self.gram[j][(r, c)];
+                    }
+                }
+            }
+            for (e, ne) in self.equations.iter_mut().enumerate() {
+                for (r, &pr) in support.iter().enumerate() {
+                    ne.b[j][pr] += self.cross[j][(r, e)];
+                }
+            }
+        }
+        self.equations
     }
 }
 

@@ -3,12 +3,12 @@
 //! which convention they follow.
 
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
-use dynforge_robot::{Data, Model, regressor};
+use dynforge_robot::{Data, Model, regressor, rnea};
 use nalgebra::DMatrix;
 
 use crate::IdentifyError;
-use crate::normal::{NormalEquations, accumulate_row};
-use crate::samples::{REST_SPEED, STOPPED_SPEED, row_support};
+use crate::normal::{BlockedRows, NormalEquations};
+use crate::samples::{REST_SPEED, STOPPED_SPEED};
 use crate::signals::{Conditioned, EffortConvention};
 
 /// Normal equations of one set of rows, one per effort convention (same regressor, other torques).
@@ -17,14 +17,12 @@ pub struct RowSums {
     by_convention: [NormalEquations; 2],
 }
 
-/// Calls `f(i, y)` with the regressor `y` of every usable sample `i` of `c`: interior samples where no joint stops,
-/// starts or reverses (the span `[t[i-1], t[i+1]]` would mix friction regimes: `crate::samples::for_each`'s rule,
-/// and the jump of Coulomb friction at a reversal), with the viscous column paired with the span's mean velocity
-/// and the Coulomb column `c.coulomb`.
-pub(crate) fn for_each_row(model: &Model, c: &Conditioned, mut f: impl FnMut(usize, &DMatrix<f64>)) {
-    let (n, len) = (c.joints, c.len());
-    let mut data = Data::new(model);
-    let regime = |i: usize, j: usize| {
+/// The interior samples of `c` in `range` whose rows are usable: no joint stops, starts or reverses around them (the
+/// span `[t[i-1], t[i+1]]` would mix friction regimes: `crate::samples::for_each`'s rule, and the jump of Coulomb
+/// friction at a reversal).
+fn usable(c: &Conditioned, range: std::ops::Range<usize>) -> impl Iterator<Item = usize> + '_ {
+    let n = c.joints;
+    let regime = move |i: usize, j: usize| {
         let v = c.qd[i * n + j];
         if v.abs() <= STOPPED_SPEED {
             0
@@ -34,10 +32,21 @@ pub(crate) fn for_each_row(model: &Model, c: &Conditioned, mut f: impl FnMut(usi
             -1
         }
     };
-    for i in 1..len.saturating_sub(1) {
-        if (0..n).any(|j| (regime(i - 1, j) != regime(i, j)) || (regime(i, j) != regime(i + 1, j))) {
-            continue;
-        }
+    let interior = range.start.max(1)..range.end.min(c.len().saturating_sub(1));
+    interior.filter(move |&i| (0..n).all(|j| regime(i - 1, j) == regime(i, j) && regime(i, j) == regime(i + 1, j)))
+}
+
+/// Calls `f(i, y)` with the regressor `y` of every usable sample `i` of `c` in `range`, with the viscous column
+/// paired with the span's mean velocity and the Coulomb column `c.coulomb`.
+pub(crate) fn for_each_row(
+    model: &Model,
+    c: &Conditioned,
+    range: std::ops::Range<usize>,
+    mut f: impl FnMut(usize, &DMatrix<f64>),
+) {
+    let n = c.joints;
+    let mut data = Data::new(model);
+    for i in usable(c, range) {
         let row = i * n..(i + 1) * n;
         regressor(model, &mut data, &c.q[row.clone()], &c.qd[row.clone()], &c.qdd[row]);
         for j in 0..n {
@@ -74,25 +83,22 @@ impl RowSums {
         RowSums { by_convention: [NormalEquations::new(dof), NormalEquations::new(dof)] }
     }
 
-    /// Adds the moving rows of `c` (joint rows slower than [`REST_SPEED`] left out).
-    pub fn add(&mut self, model: &Model, c: &Conditioned) -> Result<(), IdentifyError> {
+    /// Adds the moving rows of `c` in `range` (joint rows slower than [`REST_SPEED`] left out).
+    pub fn add(&mut self, model: &Model, c: &Conditioned, range: std::ops::Range<usize>) -> Result<(), IdentifyError> {
         let n = model.dof();
         if c.joints != n {
             return Err(IdentifyError::Dof(c.joints, n));
         }
-        let support = row_support(n);
         let moving = moving_rows(c);
-        let [held, sampled] = &mut self.by_convention;
-        for_each_row(model, c, |i, y| {
-            for j in 0..n {
-                if !moving[i * n + j] {
-                    continue;
-                }
-                accumulate_row(&mut held.a[j], y, j, &support[j]);
-                held.add_torque(j, y, &support[j], c.tau[0][i * n + j]);
-                sampled.add_torque(j, y, &support[j], c.tau[1][i * n + j]);
+        let mut rows = BlockedRows::new(n, 2);
+        for_each_row(model, c, range, |i, y| {
+            for j in (0..n).filter(|&j| moving[i * n + j]) {
+                rows.push(j, y, &[c.tau[0][i * n + j], c.tau[1][i * n + j]]);
             }
         });
+        for (ne, part) in self.by_convention.iter_mut().zip(&rows.finish()) {
+            ne.merge(part);
+        }
         Ok(())
     }
 
@@ -105,23 +111,31 @@ impl RowSums {
 
     /// The normal equations under `convention`.
     pub fn equations(&self, convention: EffortConvention) -> NormalEquations {
-        let mut ne = self.by_convention[convention as usize].clone();
-        ne.a.clone_from(&self.by_convention[0].a);
-        ne
+        self.by_convention[convention as usize].clone()
     }
 }
 
-/// Joint `j`'s torque residuals of parameters `pi` on the usable rows of `c` (moving rows; a row at rest is `None`),
-/// in sample order: what their autocorrelation is measured on.
-pub fn residuals(model: &Model, c: &Conditioned, pi: &[f64], convention: EffortConvention) -> Vec<Vec<Option<f64>>> {
-    let n = model.dof();
+/// Each joint's torque residuals of the robot `calibrated` (its inertials by inverse dynamics, its friction on the
+/// conditioned Coulomb and viscous columns) on the usable rows of `c` in `range` (a row at rest is `None`), in sample
+/// order: what their autocorrelation is measured on.
+pub fn residuals(
+    calibrated: &Model,
+    c: &Conditioned,
+    range: std::ops::Range<usize>,
+    convention: EffortConvention,
+) -> Vec<Vec<Option<f64>>> {
+    let n = calibrated.dof();
     let moving = moving_rows(c);
+    let mut data = Data::new(calibrated);
     let mut out = vec![Vec::new(); n];
-    for_each_row(model, c, |i, y| {
-        for j in 0..n {
-            let predicted: f64 = (0..pi.len()).map(|k| y[(j, k)] * pi[k]).sum();
-            out[j].push(moving[i * n + j].then(|| c.tau[convention as usize][i * n + j] - predicted));
+    for i in usable(c, range) {
+        let row = i * n..(i + 1) * n;
+        let tau = rnea(calibrated, &mut data, &c.q[row.clone()], &c.qd[row.clone()], &c.qdd[row]);
+        for (j, joint) in calibrated.joints().iter().enumerate() {
+            let k = i * n + j;
+            let friction = joint.friction.coulomb * c.coulomb[k] + joint.friction.viscous * c.v[k];
+            out[j].push(moving[k].then(|| c.tau[convention as usize][k] - tau[j] - friction));
         }
-    });
+    }
     out
 }

@@ -155,10 +155,10 @@ fn difference_share(seg: &JointTrajectory) -> f64 {
 }
 
 /// The low-pass cut-off [Hz] for differentiating the positions of the segments (see the module documentation).
-pub fn choose_cutoff(segments: &[JointTrajectory], dt: f64) -> f64 {
+pub fn choose_cutoff(segments: &[&JointTrajectory], dt: f64) -> f64 {
     let fs = 1.0 / dt;
     let hi = (CUTOFF_SHARE * fs).min(CUTOFF_RANGE.1);
-    let n = segments.first().map_or(0, JointTrajectory::joints);
+    let n = segments.first().map_or(0, |s| s.joints());
     let mut best = hi;
     for j in 0..n {
         let sigma = position_noise(segments, j);
@@ -178,7 +178,7 @@ pub fn choose_cutoff(segments: &[JointTrajectory], dt: f64) -> f64 {
 
 /// The standard deviation of joint `j`'s position noise: a quantisation step's `step / sqrt(12)` when the positions
 /// are quantised, else the white noise their third differences show (`var = 20 s^2`).
-fn position_noise(segments: &[JointTrajectory], j: usize) -> f64 {
+fn position_noise(segments: &[&JointTrajectory], j: usize) -> f64 {
     let mut steps: Vec<f64> = Vec::new();
     let (mut sum3, mut count3) = (0.0, 0usize);
     for s in segments {
@@ -209,7 +209,7 @@ fn position_noise(segments: &[JointTrajectory], j: usize) -> f64 {
 }
 
 /// Standard deviation of joint `j`'s acceleration after a zero-phase low-pass at `fc`.
-fn acceleration_spread(segments: &[JointTrajectory], j: usize, dt: f64, fc: f64) -> f64 {
+fn acceleration_spread(segments: &[&JointTrajectory], j: usize, dt: f64, fc: f64) -> f64 {
     let (mut sum, mut sum2, mut count) = (0.0, 0.0, 0usize);
     for s in segments {
         let n = s.joints();
@@ -443,8 +443,8 @@ mod tests {
                 tau: vec![0.0; n],
             }
         };
-        let fine = choose_cutoff(&[counts((1u64 << 20) as f64)], dt);
-        let coarse = choose_cutoff(&[counts((1u64 << 14) as f64)], dt);
+        let fine = choose_cutoff(&[&counts((1u64 << 20) as f64)], dt);
+        let coarse = choose_cutoff(&[&counts((1u64 << 14) as f64)], dt);
         // Coarser steps are noisier: a lower cut-off, by the fifth root of the noise power ratio (2^12 -> 5.3x).
         let ratio = 2f64.powf(12.0 / 5.0);
         assert!((fine / coarse - ratio).abs() < 0.1 * ratio, "{fine} {coarse}");

@@ -11,6 +11,7 @@ pub mod generator;
 pub mod job;
 pub mod labels;
 pub mod manifest;
+pub mod parallel;
 pub mod params;
 pub mod run_dir;
 pub mod shard;

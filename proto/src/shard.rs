@@ -64,7 +64,8 @@ pub struct JointState {
     pub sec: i32,
     pub nanosec: u32,
     pub frame_id: String,
-    pub name: Vec<String>,
+    /// Shared between the messages of a log that name the same joints (see [`JointStateDecoder`]).
+    pub name: std::sync::Arc<[String]>,
     pub position: Vec<f64>,
     pub velocity: Vec<f64>,
     pub effort: Vec<f64>,
@@ -144,11 +145,14 @@ impl<'a> Reader<'a> {
         self.align(4);
         Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
     }
-    fn string(&mut self) -> Result<String, CdrError> {
+    fn str(&mut self) -> Result<&'a str, CdrError> {
         let n = self.u32()? as usize;
         let bytes = self.take(n)?;
         let text = bytes.strip_suffix(&[0]).unwrap_or(bytes);
-        String::from_utf8(text.to_vec()).map_err(|e| CdrError(format!("string is not UTF-8: {e}")))
+        std::str::from_utf8(text).map_err(|e| CdrError(format!("string is not UTF-8: {e}")))
+    }
+    fn string(&mut self) -> Result<String, CdrError> {
+        self.str().map(str::to_string)
     }
     fn f64s(&mut self) -> Result<Vec<f64>, CdrError> {
         let n = self.u32()? as usize;
@@ -167,7 +171,7 @@ pub fn encode_joint_state(m: &JointState) -> Vec<u8> {
     w.u32(m.nanosec);
     w.string(&m.frame_id);
     w.u32(m.name.len() as u32);
-    for n in &m.name {
+    for n in m.name.iter() {
         w.string(n);
     }
     w.f64s(&m.position);
@@ -178,16 +182,38 @@ pub fn encode_joint_state(m: &JointState) -> Vec<u8> {
 
 /// Decodes a CDR JointState.
 pub fn decode_joint_state(buf: &[u8]) -> Result<JointState, CdrError> {
-    let mut r = Reader::new(buf)?;
-    let sec = r.u32()? as i32;
-    let nanosec = r.u32()?;
-    let frame_id = r.string()?;
-    let count = r.u32()? as usize;
-    if count > buf.len() {
-        return Err(CdrError(format!("{count} joint names cannot fit in {} bytes", buf.len())));
+    JointStateDecoder::default().decode(buf)
+}
+
+/// Decodes the `sensor_msgs/msg/JointState` messages of a log one after another, the messages that name the same
+/// joints as the one before sharing its name list: a driver names the same joints every time, and an hour's log at
+/// 1 kHz would otherwise hold millions of copies of them.
+#[derive(Debug, Default)]
+pub struct JointStateDecoder {
+    names: Option<std::sync::Arc<[String]>>,
+}
+
+impl JointStateDecoder {
+    pub fn decode(&mut self, buf: &[u8]) -> Result<JointState, CdrError> {
+        let mut r = Reader::new(buf)?;
+        let sec = r.u32()? as i32;
+        let nanosec = r.u32()?;
+        let frame_id = r.string()?;
+        let count = r.u32()? as usize;
+        if count > buf.len() {
+            return Err(CdrError(format!("{count} joint names cannot fit in {} bytes", buf.len())));
+        }
+        let names = (0..count).map(|_| r.str()).collect::<Result<Vec<&str>, _>>()?;
+        let name = match &self.names {
+            Some(last) if last.iter().map(String::as_str).eq(names.iter().copied()) => last.clone(),
+            _ => {
+                let fresh: std::sync::Arc<[String]> = names.iter().map(|n| n.to_string()).collect();
+                self.names = Some(fresh.clone());
+                fresh
+            }
+        };
+        Ok(JointState { sec, nanosec, frame_id, name, position: r.f64s()?, velocity: r.f64s()?, effort: r.f64s()? })
     }
-    let name = (0..count).map(|_| r.string()).collect::<Result<_, _>>()?;
-    Ok(JointState { sec, nanosec, frame_id, name, position: r.f64s()?, velocity: r.f64s()?, effort: r.f64s()? })
 }
 
 /// Encodes a `std_msgs/msg/String`.
@@ -214,7 +240,7 @@ mod tests {
             sec: 1,
             nanosec: 500,
             frame_id: "base".into(),
-            name: vec!["j0".into(), "j1".into()],
+            name: vec!["j0".into(), "j1".into()].into(),
             position: vec![1.0, 2.0],
             velocity: vec![],
             effort: vec![0.5, -0.5],
@@ -248,7 +274,7 @@ mod tests {
         assert_eq!(decode_string(&b).unwrap(), "hi");
         assert!(decode_string(&b[..6]).is_err());
         assert!(decode_string(&[0, 0, 0, 0, 1, 0, 0, 0]).is_err(), "big-endian is refused");
-        let m = JointState { name: vec!["a".into(); 6], position: vec![0.1; 6], ..Default::default() };
+        let m = JointState { name: vec!["a".into(); 6].into(), position: vec![0.1; 6], ..Default::default() };
         let full = encode_joint_state(&m);
         for cut in 0..full.len() {
             assert!(decode_joint_state(&full[..cut]).is_err(), "cut at {cut}");

@@ -42,7 +42,7 @@ impl Info {
             bytes,
             joint_states: bag.joint_states.len(),
             span,
-            joints: bag.joint_states.first().map(|m| m.name.clone()).unwrap_or_default(),
+            joints: bag.joint_states.first().map(|m| m.name.to_vec()).unwrap_or_default(),
             robot,
             metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
         })

@@ -70,7 +70,7 @@ pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -
         (None, Some(text)) => (text.clone(), format!("{file} (/robot_description)")),
         (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
     };
-    let logged: Vec<String> = bag.joint_states.first().map(|m| m.name.clone()).unwrap_or_default();
+    let logged: Vec<String> = bag.joint_states.first().map(|m| m.name.to_vec()).unwrap_or_default();
     let movable = urdf::movable_joints(&document, &source).map_err(|e| content(e.to_string()))?;
     if let Some(f) = fixed.iter().find(|f| !movable.free.contains(f) && !movable.mimic.contains(f)) {
         return Err(content(format!("--fix {f}: the URDF has no moving joint '{f}'")));
@@ -104,7 +104,10 @@ pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -
     let model = urdf::parse_welded(&document, &source, &welds).map_err(|e| content(e.to_string()))?;
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
     let (trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
-    let (dt, segments) = segments(&trajectory, &mut notes);
+    // The messages take several times the memory of the samples (an hour at 1 kHz: gigabytes): gone before the
+    // segments are cut.
+    drop(bag);
+    let (dt, segments) = segments(trajectory, &mut notes);
     if segments.is_empty() {
         return Err(content(format!("no stretch of {MIN_SEGMENT} or more evenly stamped samples")));
     }
@@ -124,7 +127,7 @@ fn mean_position(bag: &Bag, name: &str) -> Option<f64> {
 
 /// The median sampling period of `traj` and its stretches between gaps, each on a uniform grid of that period
 /// (resampled linearly when the stamps jitter by more than 1 %).
-fn segments(traj: &JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointTrajectory>) {
+fn segments(mut traj: JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointTrajectory>) {
     let steps: Vec<f64> = traj.t.windows(2).map(|w| w[1] - w[0]).collect();
     if steps.is_empty() {
         return (0.0, Vec::new());
@@ -146,7 +149,8 @@ fn segments(traj: &JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointT
     let mut short = 0;
     let mut resampled = 0;
     for w in cuts.windows(2) {
-        let part = slice(traj, w[0]..w[1]);
+        // One stretch (the usual log) is the trajectory itself, not a copy of it.
+        let part = if cuts.len() == 2 { std::mem::take(&mut traj) } else { traj.slice(w[0]..w[1]) };
         if part.len() < MIN_SEGMENT {
             short += part.len();
             continue;
@@ -170,18 +174,6 @@ fn segments(traj: &JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointT
         notes.push(format!("{resampled} stretch(es) with uneven stamps resampled to {:.4} ms", dt * 1e3));
     }
     (dt, out)
-}
-
-fn slice(traj: &JointTrajectory, range: std::ops::Range<usize>) -> JointTrajectory {
-    let n = traj.joints();
-    let rows = range.start * n..range.end * n;
-    JointTrajectory {
-        names: traj.names.clone(),
-        t: traj.t[range].to_vec(),
-        q: traj.q[rows.clone()].to_vec(),
-        qd: traj.qd[rows.clone()].to_vec(),
-        tau: traj.tau[rows].to_vec(),
-    }
 }
 
 /// The logged position range of each joint over all segments: what tells a joint that never moved.

@@ -27,6 +27,19 @@ impl JointTrajectory {
         (&self.q[r.clone()], &self.qd[r.clone()], &self.tau[r])
     }
 
+    /// Samples `range` as a trajectory of their own.
+    pub fn slice(&self, range: std::ops::Range<usize>) -> JointTrajectory {
+        let n = self.joints();
+        let rows = range.start * n..range.end * n;
+        JointTrajectory {
+            names: self.names.clone(),
+            t: self.t[range].to_vec(),
+            q: self.q[rows.clone()].to_vec(),
+            qd: self.qd[rows.clone()].to_vec(),
+            tau: self.tau[rows].to_vec(),
+        }
+    }
+
     pub fn len(&self) -> usize {
         self.t.len()
     }
@@ -71,9 +84,11 @@ fn joint_states(
         return Err(err("no sensor_msgs/msg/JointState messages on /joint_states".into()));
     }
     let n = names.len();
-    // (stamp, position, velocity, effort) per message, in the model's joint order.
-    type Row = (i64, Vec<f64>, Vec<f64>, Vec<f64>);
-    let mut rows: Vec<Row> = Vec::with_capacity(bag.joint_states.len());
+    // Stamps, and position, velocity and effort of each message in the model's joint order, as flat columns (an
+    // hour's log holds millions of messages: no allocation per message).
+    let messages = bag.joint_states.len();
+    let (mut stamps, mut q, mut qd, mut tau) =
+        (Vec::with_capacity(messages), vec![0.0; messages * n], vec![0.0; messages * n], vec![0.0; messages * n]);
     let mut columns: Vec<usize> = Vec::with_capacity(n);
     let mut last_layout: Option<&[String]> = None;
     for (k, m) in bag.joint_states.iter().enumerate() {
@@ -87,7 +102,7 @@ fn joint_states(
             }
             last_layout = Some(&m.name[..]);
         }
-        let pick = |v: &[f64], what: &str| -> Result<Vec<f64>, SamplesError> {
+        let pick = |v: &[f64], what: &str, out: &mut [f64]| -> Result<(), SamplesError> {
             if v.len() != m.name.len() {
                 return Err(err(format!(
                     "joint_states message {k}: {} {what} values for {} joints",
@@ -105,34 +120,38 @@ fn joint_states(
                     v[c]
                 )));
             }
-            Ok(columns.iter().map(|&c| v[c]).collect())
+            out.iter_mut().zip(&columns).for_each(|(o, &c)| *o = v[c]);
+            Ok(())
         };
-        let velocity = if with_velocity { pick(&m.velocity, "velocity")? } else { vec![0.0; n] };
-        rows.push((m.stamp_ns(), pick(&m.position, "position")?, velocity, pick(&m.effort, "effort")?));
+        let at = k * n..(k + 1) * n;
+        if with_velocity {
+            pick(&m.velocity, "velocity", &mut qd[at.clone()])?;
+        }
+        pick(&m.position, "position", &mut q[at.clone()])?;
+        pick(&m.effort, "effort", &mut tau[at])?;
+        stamps.push(m.stamp_ns());
     }
-    rows.sort_by_key(|r| r.0);
-    let messages = rows.len();
-    rows.dedup_by_key(|r| r.0);
+    // In stamp order (stable: a repeated stamp keeps its first message).
+    let mut order: Vec<usize> = (0..messages).collect();
+    order.sort_by_key(|&k| stamps[k]);
+    order.dedup_by_key(|k| stamps[*k]);
     // A republished message repeats a stamp now and then; a driver that does not stamp repeats one throughout.
-    let repeated = messages - rows.len();
+    let repeated = messages - order.len();
     if repeated > 1 + messages / 100 {
         return Err(err(format!(
             "{repeated} of {messages} joint_states messages repeat an earlier header stamp ({} distinct, the first \
              {:.6} s): the log's stamps do not tell when its samples were taken; record it with stamped messages",
-            rows.len(),
-            rows[0].0 as f64 * 1e-9
+            order.len(),
+            stamps[order[0]] as f64 * 1e-9
         )));
     }
     let mut out = JointTrajectory { names: names.to_vec(), ..JointTrajectory::default() };
     // Times from the first stamp, in exact nanoseconds before the conversion: a stamp of 1.7e9 s (a real clock)
     // converted whole would carry 2.4e-7 s of rounding into every period.
-    let first = rows.first().map_or(0, |r| r.0);
-    for (stamp, q, qd, tau) in rows {
-        out.t.push((stamp - first) as f64 * 1e-9);
-        out.q.extend(q);
-        out.qd.extend(qd);
-        out.tau.extend(tau);
-    }
+    let first = order.first().map_or(0, |&k| stamps[k]);
+    let pick = |column: &[f64]| order.iter().flat_map(|&k| column[k * n..(k + 1) * n].iter().copied()).collect();
+    out.t = order.iter().map(|&k| (stamps[k] - first) as f64 * 1e-9).collect();
+    (out.q, out.qd, out.tau) = (pick(&q), pick(&qd), pick(&tau));
     Ok((out, with_velocity))
 }
 

@@ -36,6 +36,8 @@ pub struct Data {
     pub(crate) u: Vec<f64>,
     pub(crate) c: Vec<Motion>,
     pub(crate) s: Vec<Motion>,
+    /// Joint motion subspaces in the base frame (the regressor's).
+    pub(crate) base_subspace: Vec<Motion>,
 }
 
 impl Data {
@@ -60,6 +62,7 @@ impl Data {
             u: vec![0.0; n],
             c: vec![Motion::ZERO; n],
             s: vec![Motion::ZERO; n],
+            base_subspace: vec![Motion::ZERO; n],
         }
     }
 }

@@ -142,7 +142,7 @@ impl Runner {
 
 /// The recording as ROS 2 joint-state messages stamped with sim time.
 pub fn joint_states(robot: &GeneratedRobot, rec: &Recording) -> Vec<JointState> {
-    let names: Vec<String> = robot.model.joints().iter().map(|j| j.name.clone()).collect();
+    let names: std::sync::Arc<[String]> = robot.model.joints().iter().map(|j| j.name.clone()).collect();
     let dt_ns = (rec.dt * 1e9).round() as i64;
     (0..rec.len())
         .map(|k| {

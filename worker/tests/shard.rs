@@ -35,7 +35,7 @@ fn shard_reads_back_every_field() {
     assert_eq!(bag.joint_states.len(), rec.len());
     for (k, m) in bag.joint_states.iter().enumerate() {
         assert_eq!(m.stamp_ns(), k as i64 * 1_000_000, "1 kHz sim-time stamps");
-        assert_eq!(m.name, ["joint_0", "joint_1", "joint_2", "joint_3", "joint_4", "joint_5"]);
+        assert_eq!(m.name[..], ["joint_0", "joint_1", "joint_2", "joint_3", "joint_4", "joint_5"]);
         assert_eq!(m.position, rec.q[k]);
         assert_eq!(m.velocity, rec.qd[k]);
         assert_eq!(m.effort, rec.tau[k]);

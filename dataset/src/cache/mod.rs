@@ -103,7 +103,7 @@ pub fn add_shards<C: Cached>(
         if !progress(out.len(), paths.len()) {
             return out;
         }
-        let read = crate::parallel::map_in_order(chunk, |p| C::read_shard(p, settings));
+        let read = dynforge_proto::parallel::map_in_order(chunk, |p| C::read_shard(p, settings));
         for (p, r) in chunk.iter().zip(read) {
             out.push(r.and_then(|s| cache.append(p, s)));
         }

@@ -22,7 +22,7 @@ use super::tables::group_r2;
 use super::torque::{TorqueRow, table};
 use super::{Estimator, EvaluationError};
 use crate::metrics::{Scores, score};
-use crate::parallel::map_in_order;
+use dynforge_proto::parallel::map_in_order;
 
 /// What the identification check reports.
 #[derive(Debug, Clone, Serialize, Deserialize)]

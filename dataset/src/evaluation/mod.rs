@@ -150,8 +150,10 @@ pub struct Validation {
     pub robot_predicted: Vec<[f64; NUM_LABELS]>,
     pub robot_truth: Vec<[f64; NUM_LABELS]>,
     /// Per recording (one log each), when the estimator reads recordings whole: predictions and truths.
-    pub recordings: Option<(Vec<[f64; NUM_LABELS]>, Vec<[f64; NUM_LABELS]>)>,
+    pub recordings: Option<(Vec<Labels>, Vec<Labels>)>,
 }
+
+type Labels = [f64; NUM_LABELS];
 
 /// The report of `estimator` (its checkpoint `name` at `epoch`) from its predictions on the validation split
 /// `v` of the dataset `data`: the scores of both protocols, the torque check on up to `torque_recordings`

@@ -18,8 +18,8 @@ use super::{ExampleRecord, Examples};
 use crate::cache::evidence::PhysicsSet;
 use crate::evidence::{Draw, LABEL_COLUMNS, NOISE_FLOOR, draw_seed, feature_width, features};
 use crate::normalize::Standardizer;
-use crate::parallel::map_in_order;
 use crate::split::{Split, split_of};
+use dynforge_proto::parallel::map_in_order;
 
 /// How the physics examples are made.
 #[derive(Debug, Clone)]

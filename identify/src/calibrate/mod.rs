@@ -11,15 +11,17 @@
 //! A log that cannot support a calibration is an error naming the joint and the reason: a joint that never moves, a
 //! residual far above the noise (the URDF's kinematics or the log's joints are not the robot's), no moving sample.
 
+mod readiness;
 mod report;
 
+pub use readiness::{Readiness, TESTED_RATES};
 pub use report::{Decided, Estimated, Identification, JointEstimate, LinkEstimate};
 
 use std::path::PathBuf;
 
 use dynforge_proto::params::friction_index;
-use dynforge_recording::ReadError;
 use dynforge_recording::log::{Log, read_logs, still_joints};
+use dynforge_recording::{JointTrajectory, ReadError};
 use dynforge_robot::Model;
 use dynforge_robot::model::{Friction, Inertial};
 use dynforge_robot::parameters::dynamic_parameters;
@@ -131,17 +133,40 @@ fn sum_rows(logs: &[Log], conditioning: &Conditioning) -> Result<(RowSums, Veloc
     let cutoff = match source {
         VelocitySource::Logged => None,
         VelocitySource::Positions => Some(conditioning.cutoff.unwrap_or_else(|| {
-            let all: Vec<_> = logs.iter().flat_map(|l| l.segments.iter().cloned()).collect();
+            let all: Vec<&JointTrajectory> = logs.iter().flat_map(|l| &l.segments).collect();
             choose_cutoff(&all, first.dt)
         })),
     };
+    let pieces: Vec<(&JointTrajectory, std::ops::Range<usize>)> = logs
+        .iter()
+        .flat_map(|l| &l.segments)
+        .flat_map(|s| (0..s.len()).step_by(PIECE).map(move |a| (s, a..(a + PIECE).min(s.len()))))
+        .collect();
+    let pad = settling(source, cutoff, first.dt);
+    let parts = dynforge_proto::parallel::map_in_order(&pieces, |(seg, range)| {
+        let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
+        let c = condition(&seg.slice(lo..hi), source, cutoff.unwrap_or(f64::MAX));
+        let mut sums = RowSums::new(first.model.dof());
+        sums.add(&first.model, &c, range.start - lo..range.end - lo).map(|()| sums)
+    });
     let mut sums = RowSums::new(first.model.dof());
-    for log in logs {
-        for seg in &log.segments {
-            sums.add(&first.model, &condition(seg, source, cutoff.unwrap_or(f64::MAX)))?;
-        }
+    for part in parts {
+        sums.merge(&part?);
     }
     Ok((sums, VelocityChoice { source, cutoff, reason }))
+}
+
+/// Samples of a segment conditioned and summed as one piece, on one core: fixed, so the sums (and their rounding)
+/// do not depend on the number of cores; each piece is conditioned with [`settling`] samples more on either side.
+const PIECE: usize = 1 << 15;
+
+/// Samples the low-pass filter needs to settle (four time constants of the cut-off) before a piece's rows are
+/// taken as the whole segment's filtering would give them (to ~1e-7 of the signal).
+fn settling(source: VelocitySource, cutoff: Option<f64>, dt: f64) -> usize {
+    match (source, cutoff) {
+        (VelocitySource::Positions, Some(fc)) => (4.0 / (fc * dt)).ceil() as usize,
+        _ => 1,
+    }
 }
 
 /// The effort convention (`flag`'s, or the one whose least-squares fit explains the torques clearly better) and why.
@@ -175,58 +200,88 @@ fn choose_convention(
 pub const CONVENTION_MARGIN: f64 = 0.1;
 
 /// The joints' noise (standard deviation of the residual [N m or N]) and the integrated autocorrelation time of the
-/// residual (in samples, at least 1) of parameters `pi` over the logs.
+/// residual (in samples, at least 1) of the robot `calibrated` over the logs: over all of their samples up to
+/// [`NOISE_SAMPLES`], else over [`NOISE_BLOCKS`] blocks spread evenly through them (a noise level and a correlation
+/// time are told as well by ten minutes of samples as by hours, at a fraction of the cost).
 fn residual_noise(
-    model: &Model,
+    calibrated: &Model,
     logs: &[Log],
     velocity: &VelocityChoice,
     convention: EffortConvention,
-    pi: &[f64],
 ) -> (Vec<f64>, Vec<f64>) {
-    let n = model.dof();
-    let (mut sum2, mut count) = (vec![0.0; n], vec![0usize; n]);
-    let (mut lag, mut lag_count) = (vec![vec![0.0; MAX_LAG + 1]; n], vec![vec![0usize; MAX_LAG + 1]; n]);
-    for log in logs {
-        for seg in &log.segments {
-            let c = condition(seg, velocity.source, velocity.cutoff.unwrap_or(f64::MAX));
-            for (j, series) in residuals(model, &c, pi, convention).iter().enumerate() {
-                for (i, e) in series.iter().enumerate() {
-                    let Some(e) = e else { continue };
-                    sum2[j] += e * e;
-                    count[j] += 1;
-                    for k in 0..=MAX_LAG.min(series.len() - 1 - i) {
-                        if let Some(f) = series[i + k] {
-                            lag[j][k] += e * f;
-                            lag_count[j][k] += 1;
-                        }
-                    }
+    let n = calibrated.dof();
+    let cutoff = velocity.cutoff.unwrap_or(f64::MAX);
+    let pad = settling(velocity.source, velocity.cutoff, logs[0].dt);
+    let blocks = noise_blocks(logs);
+    let series: Vec<Vec<Vec<Option<f64>>>> = dynforge_proto::parallel::map_in_order(&blocks, |(seg, range)| {
+        let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
+        let c = condition(&seg.slice(lo..hi), velocity.source, cutoff);
+        residuals(calibrated, &c, range.start - lo..range.end - lo, convention)
+    });
+    let stats: Vec<(f64, f64)> = dynforge_proto::parallel::map_in_order(&(0..n).collect::<Vec<_>>(), |&j| {
+        correlation(&series.iter().map(|b| b[j].as_slice()).collect::<Vec<_>>())
+    });
+    stats.into_iter().unzip()
+}
+
+/// Standard deviation and integrated autocorrelation time [samples] of a residual given in blocks (a `None` is a
+/// row left out). Lags are summed until Sokal's window closes (the lag passes five times the running time), so a
+/// residual correlated over `t` samples costs `~5 t` passes.
+fn correlation(blocks: &[&[Option<f64>]]) -> (f64, f64) {
+    let lag = |k: usize| {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for b in blocks {
+            for (e, f) in b.iter().zip(b.iter().skip(k)) {
+                if let (Some(e), Some(f)) = (e, f) {
+                    sum += e * f;
+                    count += 1;
                 }
             }
         }
+        (count > 0).then(|| sum / count as f64)
+    };
+    let c0 = lag(0).unwrap_or(0.0);
+    if c0 <= 0.0 {
+        return (0.0, 1.0);
     }
-    let mut sigma = vec![0.0; n];
-    let mut tau = vec![1.0; n];
-    for j in 0..n {
-        sigma[j] = (sum2[j] / count[j].max(1) as f64).sqrt();
-        let c0 = lag[j][0] / lag_count[j][0].max(1) as f64;
-        if c0 <= 0.0 {
-            continue;
+    let mut t = 1.0;
+    for k in 1..=MAX_LAG {
+        let Some(ck) = lag(k) else { break };
+        t += 2.0 * ck / c0;
+        if k as f64 >= 5.0 * t {
+            break;
         }
-        // Sokal's window: sum the autocorrelation until the lag passes five times the running sum.
-        let mut t = 1.0;
-        for k in 1..=MAX_LAG {
-            if lag_count[j][k] == 0 {
+    }
+    (c0.sqrt(), t.max(1.0))
+}
+
+/// Samples of the logs the noise is measured on when they hold more (~9 min at 1 kHz), and the blocks they are
+/// taken in.
+const NOISE_SAMPLES: usize = 1 << 19;
+const NOISE_BLOCKS: usize = 32;
+
+/// The stretches of the logs' segments the noise is measured on: every segment whole when they hold at most
+/// [`NOISE_SAMPLES`], else [`NOISE_BLOCKS`] blocks centred at evenly spaced points of their concatenation.
+fn noise_blocks(logs: &[Log]) -> Vec<(&JointTrajectory, std::ops::Range<usize>)> {
+    let segments: Vec<&JointTrajectory> = logs.iter().flat_map(|l| &l.segments).collect();
+    let total: usize = segments.iter().map(|s| s.len()).sum();
+    if total <= NOISE_SAMPLES {
+        return segments.into_iter().map(|s| (s, 0..s.len())).collect();
+    }
+    let block = NOISE_SAMPLES / NOISE_BLOCKS;
+    let mut out = Vec::new();
+    for b in 0..NOISE_BLOCKS {
+        let mut at = (2 * b + 1) * total / (2 * NOISE_BLOCKS);
+        for s in &segments {
+            if at < s.len() {
+                let start = at.saturating_sub(block / 2).min(s.len().saturating_sub(block));
+                out.push((*s, start..(start + block).min(s.len())));
                 break;
             }
-            let rho = lag[j][k] / lag_count[j][k] as f64 / c0;
-            t += 2.0 * rho;
-            if k as f64 >= 5.0 * t {
-                break;
-            }
+            at -= s.len();
         }
-        tau[j] = t.max(1.0);
     }
-    (sigma, tau)
+    out
 }
 
 /// Longest lag of the residual's autocorrelation looked at [samples]: a filter at a few Hz correlates ~100 samples at
@@ -258,8 +313,8 @@ fn fit(
     let mut solution = consistent::solve(ne, &weights, &prior, &prior.mean)?;
     let mut measured = (Vec::new(), Vec::new());
     for _ in 0..2 {
-        let pi = consistent::parameters(n, &solution.x);
-        measured = residual_noise(model, logs, velocity, convention, &pi);
+        let calibrated = model_with(model, &consistent::parameters(n, &solution.x))?;
+        measured = residual_noise(&calibrated, logs, velocity, convention);
         weights = (0..n).map(|j| weight(j, measured.0[j].powi(2), measured.1[j])).collect();
         solution = consistent::solve(ne, &weights, &prior, &solution.x)?;
     }

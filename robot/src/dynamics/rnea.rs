@@ -28,6 +28,26 @@ pub fn gravity_torque<'a>(model: &Model, data: &'a mut Data, q: &[f64]) -> &'a [
 /// Forward pass (kinematics, twists, accelerations with gravity as a base acceleration, link forces) then the
 /// backward pass accumulating forces into joint torques. Leaves `v`, `a`, `o_m_i` in `data` for other algorithms.
 pub(crate) fn run(model: &Model, data: &mut Data, q: &[f64], qd: Option<&[f64]>, qdd: Option<&[f64]>) {
+    forward(model, data, q, qd, qdd, true);
+    for i in (0..model.dof()).rev() {
+        data.tau[i] = model.subspace(i).dot(&data.f[i]);
+        if i > 0 {
+            let to_parent = data.li_m_i[i].act_force(&data.f[i]);
+            data.f[i - 1] += to_parent;
+        }
+    }
+}
+
+/// The forward pass alone: placements, twists and accelerations (gravity as the base's acceleration) of every
+/// body, and with `forces` each body's net force `I a + v x* I v`.
+pub(crate) fn forward(
+    model: &Model,
+    data: &mut Data,
+    q: &[f64],
+    qd: Option<&[f64]>,
+    qdd: Option<&[f64]>,
+    forces: bool,
+) {
     let n = model.dof();
     assert!(
         q.len() == n && qd.is_none_or(|v| v.len() == n) && qdd.is_none_or(|v| v.len() == n),
@@ -44,16 +64,11 @@ pub(crate) fn run(model: &Model, data: &mut Data, q: &[f64], qd: Option<&[f64]>,
         let (v_parent, a_parent) = if i == 0 { (Motion::ZERO, base_acc) } else { (data.v[i - 1], data.a[i - 1]) };
         let v = x.act_inv_motion(&v_parent) + vj;
         let a = x.act_inv_motion(&a_parent) + aj + v.cross_motion(&vj);
-        let inertia = model.inertia(i);
         data.v[i] = v;
         data.a[i] = a;
-        data.f[i] = inertia.apply(&a) + v.cross_force(&inertia.apply(&v));
-    }
-    for i in (0..n).rev() {
-        data.tau[i] = model.subspace(i).dot(&data.f[i]);
-        if i > 0 {
-            let to_parent = data.li_m_i[i].act_force(&data.f[i]);
-            data.f[i - 1] += to_parent;
+        if forces {
+            let inertia = model.inertia(i);
+            data.f[i] = inertia.apply(&a) + v.cross_force(&inertia.apply(&v));
         }
     }
 }

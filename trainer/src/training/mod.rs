@@ -136,7 +136,7 @@ pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], devi
     };
     // Chunk boundaries do not depend on the core count, so neither do the predictions.
     let starts: Vec<usize> = (0..count).step_by(CHUNK).collect();
-    dynforge_dataset::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
+    dynforge_proto::parallel::map_in_order(&starts, |&start| chunk(start)).into_iter().flatten().collect()
 }
 
 /// Scores, SI predictions and mean squared error (standardised) of `model` on the validation examples.

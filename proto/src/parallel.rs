@@ -1,5 +1,6 @@
-//! Work spread over the cores. burn's CPU backend and the shard reader each use one core per call, so dynforge
-//! runs independent calls side by side itself.
+//! Work spread over the cores, with results that do not depend on how many there are (the determinism every
+//! output of dynforge keeps). The shard reader, the dynamics and burn's CPU backend each use one core per call,
+//! so dynforge runs independent calls side by side itself.
 
 /// `f` of every item, in item order, computed on one thread per core (thread t takes items t, t + n, ...). The
 /// result does not depend on the number of cores.

@@ -1,0 +1,116 @@
+//! Which commands can take a log, and why not: what `dynforge info` says beside the log's summary, found by reading
+//! the log the way each command does (so what it says is what the command will do).
+
+use std::path::Path;
+
+use dynforge_recording::log::{read_log, still_joints};
+
+use super::MIN_ROWS;
+use crate::REST_SPEED;
+use crate::signals::{VelocitySource, choose_velocity};
+
+/// Rates the identification is tested at [Hz]: a log outside them is read, with a caution.
+pub const TESTED_RATES: (f64, f64) = (100.0, 1000.0);
+
+/// What `identify` and `estimate` make of a log: what they would read, or why they cannot.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Readiness {
+    pub identify: Result<String, String>,
+    pub estimate: Result<String, String>,
+}
+
+impl Readiness {
+    /// Reads the log at `path` as each command would; `described` says whether it has a `/robot_description` (else
+    /// both need the robot's URDF, and what they would read depends on it).
+    pub fn of(path: &Path, described: bool) -> Readiness {
+        if !described {
+            let why = "the log has no readable /robot_description: give the robot's URDF with --urdf".to_string();
+            return Readiness { identify: Err(why.clone()), estimate: Err(why) };
+        }
+        Readiness { identify: identify(path), estimate: estimate(path) }
+    }
+}
+
+fn identify(path: &Path) -> Result<String, String> {
+    let log = read_log(path, None, &[]).map_err(|e| e.to_string())?;
+    let logs = [log];
+    let still = still_joints(&logs);
+    if !still.is_empty() {
+        let names: Vec<&str> = still.keys().map(String::as_str).collect();
+        return Err(format!(
+            "joint(s) {} never move in the log: weld them with --fix {}",
+            names.join(", "),
+            names.join(" --fix ")
+        ));
+    }
+    let log = &logs[0];
+    let n = log.model.dof();
+    // Samples where each joint moves (central differences of its positions faster than the rest speed): under
+    // [`MIN_ROWS`] of them, identify refuses it.
+    let moving = |j: usize| -> usize {
+        let step = 2.0 * log.dt;
+        let count = |s: &dynforge_recording::JointTrajectory| {
+            (1..s.len().saturating_sub(1))
+                .filter(|&i| ((s.q[(i + 1) * n + j] - s.q[(i - 1) * n + j]) / step).abs() > REST_SPEED)
+                .count()
+        };
+        log.segments.iter().map(count).sum()
+    };
+    let idle: Vec<&str> =
+        (0..n).filter(|&j| moving(j) < MIN_ROWS).map(|j| log.model.joints()[j].name.as_str()).collect();
+    if !idle.is_empty() {
+        return Err(format!(
+            "joint(s) {} move too little (under {MIN_ROWS} moving samples): record more motion of them, or weld them \
+             with --fix {}",
+            idle.join(", "),
+            idle.join(" --fix ")
+        ));
+    }
+    let silent: Vec<&str> = (0..n)
+        .filter(|&j| log.segments.iter().all(|s| (0..s.len()).all(|i| s.tau[i * n + j] == 0.0)))
+        .map(|j| log.model.joints()[j].name.as_str())
+        .collect();
+    if !silent.is_empty() {
+        return Err(format!("the effort of {} is zero throughout: no torques to calibrate from", silent.join(", ")));
+    }
+    let rate = 1.0 / log.dt;
+    let velocity = match choose_velocity(&log.segments[0], log.velocity_logged, None) {
+        (VelocitySource::Logged, why) => format!("velocity as logged ({why})"),
+        (VelocitySource::Positions, why) => format!("velocity from the positions ({why})"),
+    };
+    let mut said = format!(
+        "{} joints, {} samples in {} stretch(es) at {rate:.1} Hz; {velocity}",
+        n,
+        log.samples(),
+        log.segments.len()
+    );
+    if !(0.95 * TESTED_RATES.0..=1.05 * TESTED_RATES.1).contains(&rate) {
+        said += &format!(" (a rate outside the {:.0} Hz-{:.0} kHz tested)", TESTED_RATES.0, TESTED_RATES.1 / 1e3);
+    }
+    for note in &log.notes {
+        said += &format!("; {note}");
+    }
+    Ok(said)
+}
+
+fn estimate(path: &Path) -> Result<String, String> {
+    let rec = dynforge_recording::read(path, None).map_err(|e| e.to_string())?;
+    Ok(format!(
+        "a {}-joint robot, {:.1} s of motion: with a model trained on its family (dynforge estimate --checkpoint RUN)",
+        rec.model.dof(),
+        rec.trajectory.t.last().copied().unwrap_or(0.0)
+    ))
+}
+
+impl std::fmt::Display for Readiness {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "Usable by:")?;
+        for (command, verdict) in [("identify", &self.identify), ("estimate", &self.estimate)] {
+            match verdict {
+                Ok(what) => writeln!(f, "  {command}: yes: {what}")?,
+                Err(why) => writeln!(f, "  {command}: no: {why}")?,
+            }
+        }
+        Ok(())
+    }
+}
