@@ -16,104 +16,18 @@ use dynforge_identify::calibrate::{Identification, Options, held_out, identify_l
 use dynforge_identify::signals::{Conditioning, EffortConvention};
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::dynamic_parameters;
+use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
 use serde_json::{Value, json};
 
-const SCRIPT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/reference/simulate_arm.py");
-
-fn python(py: &str, args: &[&str], stdin: &Value) -> String {
-    dynforge_testkit::run_python(py, Path::new(SCRIPT), args, &stdin.to_string())
-}
-
-/// The arms: URDF name, friction of the joints that move (Coulomb, viscous), joints the logs hold still.
-struct Arm {
-    name: &'static str,
-    friction: &'static [(&'static str, f64, f64)],
-    fixed: &'static [&'static str],
-}
-
-const UR5: Arm = Arm {
-    name: "ur5",
-    friction: &[
-        ("shoulder_pan_joint", 5.0, 4.0),
-        ("shoulder_lift_joint", 6.0, 5.0),
-        ("elbow_joint", 4.0, 3.0),
-        ("wrist_1_joint", 1.5, 1.0),
-        ("wrist_2_joint", 1.2, 0.8),
-        ("wrist_3_joint", 1.0, 0.5),
-    ],
-    fixed: &[],
-};
-
-/// Friction of the Panda's order (Gaz et al., RA-L 2019: Coulomb 0.2-0.7 N m, viscous 0.05-0.6 N m s/rad). Its
-/// fingers are logged but held still: welded by `--fix` (the mimic finger by itself).
-const PANDA: Arm = Arm {
-    name: "panda",
-    friction: &[
-        ("panda_joint1", 0.5, 0.6),
-        ("panda_joint2", 0.6, 0.6),
-        ("panda_joint3", 0.4, 0.5),
-        ("panda_joint4", 0.45, 0.5),
-        ("panda_joint5", 0.2, 0.15),
-        ("panda_joint6", 0.25, 0.15),
-        ("panda_joint7", 0.2, 0.12),
-    ],
-    fixed: &["panda_finger_joint1"],
-};
-
-/// A log of `arm`: `kind` adds the driver's degradations to `effort` (held or sampled) at `rate`.
-#[derive(Clone, Copy, PartialEq)]
-enum Kind {
-    Clean,
-    /// 1 % effort noise, 2^17-count encoders, velocity from encoder differences.
-    Noisy,
-}
-
-struct Fixture {
-    py: String,
-    dir: tempfile::TempDir,
-    urdf: String,
-}
-
-impl Fixture {
-    fn new(py: String, arm: &Arm) -> Self {
-        let urdf = python(&py, &["--path", arm.name], &json!({})).trim().to_string();
-        Fixture { py, dir: tempfile::tempdir().unwrap(), urdf }
-    }
-
-    /// The nominal URDF (inertials off by 20-30 %, no friction).
-    fn nominal(&self, seed: u64) -> PathBuf {
-        let out = self.dir.path().join(format!("nominal{seed}.urdf"));
-        python(
-            &self.py,
-            &["--perturb"],
-            &json!({"urdf": self.urdf, "seed": seed, "low": 0.2, "high": 0.3, "out": out}),
-        );
-        out
-    }
-
-    /// Simulates a log (seconds of motion of reference `seed`); returns its path.
-    fn log(&self, arm: &Arm, seed: u64, seconds: f64, effort: EffortConvention, kind: Kind, rate: f64) -> PathBuf {
-        let out = self.dir.path().join(format!("{}-{seed}-{}-{}-{rate}.mcap", arm.name, effort.name(), kind as u8));
-        let friction: serde_json::Map<String, Value> =
-            arm.friction.iter().map(|(j, c, v)| (j.to_string(), json!([c, v]))).collect();
-        let mut req = json!({
-            "urdf": self.urdf, "friction": friction, "seed": seed, "duration": seconds, "rate": rate,
-            "effort": effort.name(), "out": out,
-        });
-        if kind == Kind::Noisy {
-            req["noise"] = json!(0.01);
-            req["counts"] = json!(131072);
-            req["velocity"] = json!("encoder");
-        }
-        python(&self.py, &[], &req);
-        out
-    }
+/// A log of `arm`: the harness's, its effort convention named as `identify` names it.
+fn log(f: &Harness, arm: &Arm, seed: u64, seconds: f64, effort: EffortConvention, kind: LogKind, rate: f64) -> PathBuf {
+    f.log(arm, seed, seconds, effort.name(), kind, rate)
 }
 
 /// Identifies `log` from `nominal`, checks friction against `arm`'s within `coulomb` / `viscous` (relative), and
 /// returns the identification with its held-out torque NRMSE and the true URDF's on `held`.
 fn calibrate(
-    f: &Fixture,
+    f: &Harness,
     arm: &Arm,
     log: &Path,
     nominal: &Path,
@@ -147,12 +61,13 @@ fn calibrate(
 /// Both conventions, clean and noisy, on one arm.
 fn arm_from_its_logs(arm: &Arm, seconds: f64) {
     let Some(py) = dynforge_testkit::reference_python() else { return };
-    let f = Fixture::new(py, arm);
+    let tmp = tempfile::tempdir().unwrap();
+    let f = Harness::new(py, tmp.path(), arm);
     let nominal = f.nominal(3);
     for effort in EffortConvention::ALL {
-        let fit = f.log(arm, 1, seconds, effort, Kind::Clean, 1000.0);
-        let held = f.log(arm, 2, 20.0, effort, Kind::Clean, 1000.0);
-        let noisy = f.log(arm, 1, seconds, effort, Kind::Noisy, 1000.0);
+        let fit = log(&f, arm, 1, seconds, effort, LogKind::Clean, 1000.0);
+        let held = log(&f, arm, 2, 20.0, effort, LogKind::Clean, 1000.0);
+        let noisy = log(&f, arm, 1, seconds, effort, LogKind::Noisy, 1000.0);
         // Clean: the convention is found from the data.
         let (id, nrmse, truth) = calibrate(&f, arm, &fit, &nominal, &held, None, (1e-3, 1e-3));
         assert_eq!(id.effort, effort, "{}", id.effort_reason);
@@ -184,21 +99,27 @@ fn the_panda_with_its_seven_joints_and_welded_fingers_is_calibrated_likewise() {
 #[test]
 fn identify_writes_what_it_prints_and_refuses_logs_it_cannot_use() {
     let Some(py) = dynforge_testkit::reference_python() else { return };
-    let f = Fixture::new(py.clone(), &UR5);
+    let tmp = tempfile::tempdir().unwrap();
+    let f = Harness::new(py.clone(), tmp.path(), &UR5);
     let nominal = f.nominal(5);
-    let friction: serde_json::Map<String, Value> =
-        UR5.friction.iter().map(|(j, c, v)| (j.to_string(), json!([c, v]))).collect();
-    let split = f.dir.path().join("ur5-125hz");
-    python(
-        &py,
+    let split = f.dir.join("ur5-125hz");
+    f.run(
         &[],
         &json!({
-            "urdf": f.urdf, "friction": friction, "seed": 4, "duration": 30.0, "rate": 125.0, "effort": "held",
+            "urdf": f.urdf, "friction": UR5.friction_json(), "seed": 4, "duration": 30.0, "rate": 125.0, "effort": "held",
             "out": split, "split": 2,
         }),
     );
-    let held = f.log(&UR5, 2, 20.0, EffortConvention::Held, Kind::Clean, 125.0);
-    let out = f.dir.path().join("calibrated.urdf");
+    let held = log(&f, &UR5, 2, 20.0, EffortConvention::Held, LogKind::Clean, 125.0);
+    // `info` reads the split directory as identify will: both files, its rate, its velocity.
+    let info = dynforge(&["info", split.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        said.contains("identify: yes: 6 joints, 3751 samples in 1 stretch(es) at 125.0 Hz; velocity as logged")
+            && said.contains("estimate: yes: a 6-joint robot"),
+        "{said}"
+    );
+    let out = f.dir.join("calibrated.urdf");
     let (s, n, o, h) =
         (split.to_str().unwrap(), nominal.to_str().unwrap(), out.to_str().unwrap(), held.to_str().unwrap());
     let run = dynforge(&["identify", s, "--urdf", n, "--out", o, "--holdout", h, "--json"]);
@@ -232,7 +153,7 @@ fn identify_writes_what_it_prints_and_refuses_logs_it_cannot_use() {
     }
     // The written URDF loads in MuJoCo with the calibrated masses: its total is the nominal's (whose fixed base
     // the calibration leaves as it is) with the moving links' masses replaced.
-    let load = |path: &str| -> Value { serde_json::from_str(&python(&py, &["--load", path], &json!({}))).unwrap() };
+    let load = |path: &str| -> Value { serde_json::from_str(&f.run(&["--load", path], &json!({}))).unwrap() };
     let (loaded, before) = (load(o), load(n));
     let moving = |m: &dynforge_robot::Model| (0..6).map(|l| m.inertia(l).mass).sum::<f64>();
     let nominal_model = dynforge_robot::urdf::load(&nominal).unwrap();
@@ -262,10 +183,10 @@ fn identify_writes_what_it_prints_and_refuses_logs_it_cannot_use() {
     }
 
     // A URDF whose upper arm is 17.5 cm too long cannot explain the torques: refused, naming the joint.
-    let wrong = f.dir.path().join("wrong.urdf");
+    let wrong = f.dir.join("wrong.urdf");
     let text = std::fs::read_to_string(&nominal).unwrap();
     std::fs::write(&wrong, text.replace("xyz=\"0.0 -0.1197 0.425\"", "xyz=\"0.0 -0.1197 0.6\"")).unwrap();
-    let none = f.dir.path().join("none.urdf");
+    let none = f.dir.join("none.urdf");
     let refused = dynforge(&["identify", s, "--urdf", wrong.to_str().unwrap(), "--out", none.to_str().unwrap()]);
     let said = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && said.contains("does not explain the torques of joint"), "{said}");
@@ -280,11 +201,56 @@ fn identify_writes_what_it_prints_and_refuses_logs_it_cannot_use() {
 #[test]
 fn a_joint_the_logs_hold_still_is_named_with_the_way_out() {
     let Some(py) = dynforge_testkit::reference_python() else { return };
-    let f = Fixture::new(py, &PANDA);
-    let log = f.log(&PANDA, 1, 10.0, EffortConvention::Held, Kind::Clean, 1000.0);
-    let none = f.dir.path().join("none.urdf");
-    let refused = dynforge(&["identify", log.to_str().unwrap(), "--out", none.to_str().unwrap()]);
+    let tmp = tempfile::tempdir().unwrap();
+    let f = Harness::new(py, tmp.path(), &PANDA);
+    let still = log(&f, &PANDA, 1, 10.0, EffortConvention::Held, LogKind::Clean, 1000.0);
+    // `info` says so before a calibration is tried.
+    let info = dynforge(&["info", still.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&info.stdout);
+    assert!(
+        said.contains("identify: no: joint(s) panda_finger_joint1 move too little") && said.contains("--fix"),
+        "{said}"
+    );
+    let none = f.dir.join("none.urdf");
+    let refused = dynforge(&["identify", still.to_str().unwrap(), "--out", none.to_str().unwrap()]);
     let said = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && said.contains("panda_finger_joint1") && said.contains("--fix"), "{said}");
     assert!(!none.exists());
+}
+
+/// `estimate` reads robots of the family its model was trained on: a UR5's or a Panda's log is refused, naming the
+/// command that serves them, and nothing is written.
+#[test]
+fn estimate_refuses_a_real_arm_and_names_identify() {
+    let Some(py) = dynforge_testkit::reference_python() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, run) = (tmp.path().join("data"), tmp.path().join("run"));
+    let generated =
+        dynforge(&["generate", "--out", data.to_str().unwrap(), "--robots", "6", "--trajectories", "2", "--seed", "7"]);
+    assert!(generated.status.success(), "{}", String::from_utf8_lossy(&generated.stderr));
+    let small = ["--epochs", "1", "--generated", "256", "--dim", "16", "--validation", "0.34"];
+    let mut train = vec!["train", data.to_str().unwrap(), "--out", run.to_str().unwrap()];
+    train.extend(small);
+    let trained = dynforge(&train);
+    assert!(trained.status.success(), "{}", String::from_utf8_lossy(&trained.stderr));
+    for arm in [&UR5, &PANDA] {
+        let f = Harness::new(py.clone(), tmp.path(), arm);
+        let log = log(&f, arm, 1, 10.0, EffortConvention::Held, LogKind::Clean, 1000.0);
+        let out = tmp.path().join(format!("{}.estimated.urdf", arm.name));
+        let refused = dynforge(&[
+            "estimate",
+            "--checkpoint",
+            run.to_str().unwrap(),
+            log.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let said = String::from_utf8_lossy(&refused.stderr);
+        assert!(
+            !refused.status.success() && said.contains("not of the family") && said.contains("dynforge identify"),
+            "{}: {said}",
+            arm.name
+        );
+        assert!(!out.exists(), "{}: a refused estimate writes nothing", arm.name);
+    }
 }

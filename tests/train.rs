@@ -195,7 +195,7 @@ fn train_evaluate_and_estimate_a_small_dataset() {
             sec: (i / 1000) as i32,
             nanosec: (i % 1000) * 1_000_000,
             frame_id: String::new(),
-            name: names.clone(),
+            name: names.as_slice().into(),
             position: vec![0.3; 6],
             velocity: vec![0.0; 6],
             effort: vec![1.0; 6],

@@ -1,5 +1,7 @@
 //! Helpers shared by dynforge's test suites.
 
+pub mod arms;
+
 use std::io::Write;
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -83,6 +85,7 @@ pub fn sinusoid_recording(
 /// `/robot_description`: what a user's log of that robot is.
 pub fn write_bag(path: &Path, urdf: &str, traj: &dynforge_recording::JointTrajectory) {
     let n = traj.joints();
+    let names: std::sync::Arc<[String]> = traj.names.as_slice().into();
     let joint_states: Vec<dynforge_proto::shard::JointState> = (0..traj.len())
         .map(|i| {
             let ns = (traj.t[i] * 1e9).round() as i64;
@@ -91,7 +94,7 @@ pub fn write_bag(path: &Path, urdf: &str, traj: &dynforge_recording::JointTrajec
                 sec: (ns / 1_000_000_000) as i32,
                 nanosec: (ns % 1_000_000_000) as u32,
                 frame_id: String::new(),
-                name: traj.names.clone(),
+                name: names.clone(),
                 position: q.to_vec(),
                 velocity: qd.to_vec(),
                 effort: tau.to_vec(),
