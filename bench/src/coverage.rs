@@ -1,0 +1,116 @@
+//! Whether the spreads `estimate` reports are standard deviations: on robots the estimator never saw (a dataset of
+//! another seed), each label's error over its reported spread, `z = (value - truth) / spread`, should fall within 1
+//! about 68 % of the time and within 2 about 95 %. Measured for the estimator alone (its spread: the validation RMSE
+//! of `report.json` for this many logs) and refined by the log's torques (the posterior spread, what `estimate`
+//! prints), from one log and from all of a robot's logs.
+//!
+//! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N]
+
+use anyhow::{Context, Result, bail};
+use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
+use dynforge_recording::Recording;
+use dynforge_trainer::inference::Predictor;
+use std::collections::BTreeMap;
+
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+/// Each label's `z` for one robot under one protocol: the estimator's and the refined one.
+struct Zs {
+    estimator: [f64; NUM_LABELS],
+    refined: [f64; NUM_LABELS],
+}
+
+fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS]) -> Result<Zs> {
+    let e = predictor.estimate(recs)?;
+    let r = predictor.refine(recs, &e)?;
+    Ok(Zs {
+        estimator: std::array::from_fn(|k| (e.labels[k] - truth[k]) / e.spread[k]),
+        refined: std::array::from_fn(|k| (r.labels[k] - truth[k]) / r.std[k]),
+    })
+}
+
+/// The label kinds as the table groups them.
+fn group(kind: LabelKind) -> &'static str {
+    match kind {
+        LabelKind::Coulomb | LabelKind::Viscous => "friction",
+        LabelKind::Mass => "mass",
+        LabelKind::Com => "com",
+        _ => "inertia",
+    }
+}
+
+/// Rows of the table: per group, the fraction within 1 and 2 spreads and the median |z|.
+fn table(name: &str, per_robot: &[[f64; NUM_LABELS]]) {
+    let mut groups: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
+    for z in per_robot {
+        for (k, l) in LABELS.iter().enumerate() {
+            groups.entry(group(l.kind)).or_default().push(z[k].abs());
+            groups.entry("all").or_default().push(z[k].abs());
+        }
+    }
+    for (g, mut v) in groups {
+        v.sort_by(f64::total_cmp);
+        let within = |c: f64| 100.0 * v.iter().filter(|&&z| z < c).count() as f64 / v.len() as f64;
+        println!(
+            "| {name} | {g} | {} | {:.0} % | {:.0} % | {:.2} |",
+            v.len(),
+            within(1.0),
+            within(2.0),
+            v[v.len() / 2]
+        );
+    }
+}
+
+fn main() -> Result<()> {
+    let mut args = std::env::args().skip(1);
+    let (mut positional, mut robots) = (Vec::new(), usize::MAX);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--robots" => robots = args.next().context("--robots needs a value")?.parse()?,
+            _ if a.starts_with("--") => bail!("unknown option {a}"),
+            _ => positional.push(a),
+        }
+    }
+    let [ckpt, data] = positional.as_slice() else { bail!("usage: dynforge-bench-coverage CHECKPOINT DATA") };
+    let predictor = Predictor::load(std::path::Path::new(ckpt))?;
+    let mut by_robot: BTreeMap<u64, Vec<std::path::PathBuf>> = BTreeMap::new();
+    for e in std::fs::read_dir(std::path::Path::new(data).join("shards"))? {
+        let path = e?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
+        if let Some(r) = dynforge_proto::shard::robot_of_file_name(&name) {
+            by_robot.entry(r).or_default().push(path);
+        }
+    }
+    let chosen: Vec<(u64, Vec<std::path::PathBuf>)> = by_robot.into_iter().take(robots).collect();
+    eprintln!("{} robots of {data}", chosen.len());
+    let results = dynforge_proto::parallel::map_in_order(&chosen, |(robot, paths)| -> Result<(Zs, Zs, usize)> {
+        let mut paths = paths.clone();
+        paths.sort();
+        let recs: Vec<Recording> = paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
+        let truth = recs[0].labels.with_context(|| format!("robot {robot}: no labels"))?;
+        let refs: Vec<&Recording> = recs.iter().collect();
+        Ok((zs(&predictor, &refs[..1], &truth)?, zs(&predictor, &refs, &truth)?, recs.len()))
+    });
+    let (mut rows, mut failed) = (Vec::new(), 0);
+    for r in results {
+        match r {
+            Ok(r) => rows.push(r),
+            Err(e) => {
+                failed += 1;
+                eprintln!("skipped: {e:#}");
+            }
+        }
+    }
+    let logs = rows.first().map_or(0, |r| r.2);
+    println!("{} robots ({failed} skipped), {logs} logs each; z = (value - truth) / spread\n", rows.len());
+    println!("| estimate | labels | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
+    println!("|---|---|---|---|---|---|");
+    type Row = (Zs, Zs, usize);
+    let pick = |f: fn(&Row) -> [f64; NUM_LABELS]| rows.iter().map(f).collect::<Vec<_>>();
+    table("estimator, 1 log", &pick(|r| r.0.estimator));
+    table("refined, 1 log", &pick(|r| r.0.refined));
+    table(&format!("estimator, {logs} logs"), &pick(|r| r.1.estimator));
+    table(&format!("refined, {logs} logs"), &pick(|r| r.1.refined));
+    Ok(())
+}
