@@ -129,6 +129,12 @@ fn children_peak_mb() -> f64 {
     usage.ru_maxrss as f64 / 1024.0
 }
 
+const USAGE: &str = "usage: dynforge-bench-long-log --dynforge RELEASE_BINARY [--minutes 60] [--files 6] [--dir DIR] \
+                     [--reference-minutes M]\n\
+Synthesizes an hour-long 1 kHz Panda log (1 % effort noise, 2^17-count encoders, velocity differenced), times \
+`dynforge identify` on it and, with --reference-minutes, a Pinocchio + numpy least-squares reference on the first M \
+minutes (DYNFORGE_PYTHON: the venv of scripts/venv.sh); prints both per sample, side by side.";
+
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut minutes, mut files, mut dir, mut dynforge, mut reference) = (60.0, 6, None, None, None);
@@ -140,7 +146,11 @@ fn main() -> Result<()> {
             "--dir" => dir = Some(PathBuf::from(value()?)),
             "--dynforge" => dynforge = Some(PathBuf::from(value()?)),
             "--reference-minutes" => reference = Some(value()?.parse::<f64>()?),
-            _ => bail!("unknown option {a}"),
+            "-h" | "--help" => {
+                println!("{USAGE}");
+                return Ok(());
+            }
+            _ => bail!("unknown option {a}\n\n{USAGE}"),
         }
     }
     let dynforge = dynforge.context("--dynforge PATH: the release binary to time")?;

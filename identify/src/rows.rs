@@ -36,17 +36,19 @@ fn usable(c: &Conditioned, range: std::ops::Range<usize>) -> impl Iterator<Item 
     interior.filter(move |&i| (0..n).all(|j| regime(i - 1, j) == regime(i, j) && regime(i, j) == regime(i + 1, j)))
 }
 
-/// Calls `f(i, y)` with the regressor `y` of every usable sample `i` of `c` in `range`, with the viscous column
-/// paired with the span's mean velocity and the Coulomb column `c.coulomb`.
+/// Calls `f(i, y)` with the regressor `y` of every usable sample `i` of `c` in `range` (every `step`-th from its
+/// start), with the viscous column paired with the span's mean velocity and the Coulomb column `c.coulomb`.
 pub(crate) fn for_each_row(
     model: &Model,
     c: &Conditioned,
     range: std::ops::Range<usize>,
+    step: usize,
     mut f: impl FnMut(usize, &DMatrix<f64>),
 ) {
     let n = c.joints;
     let mut data = Data::new(model);
-    for i in usable(c, range) {
+    let start = range.start;
+    for i in usable(c, range).filter(|i| (i - start) % step == 0) {
         let row = i * n..(i + 1) * n;
         regressor(model, &mut data, &c.q[row.clone()], &c.qd[row.clone()], &c.qdd[row]);
         for j in 0..n {
@@ -83,15 +85,25 @@ impl RowSums {
         RowSums { by_convention: [NormalEquations::new(dof), NormalEquations::new(dof)] }
     }
 
-    /// Adds the moving rows of `c` in `range` (joint rows slower than [`REST_SPEED`] left out).
-    pub fn add(&mut self, model: &Model, c: &Conditioned, range: std::ops::Range<usize>) -> Result<(), IdentifyError> {
+    /// Adds the moving rows of `c` in `range` (joint rows slower than [`REST_SPEED`] left out) at the samples whose
+    /// index in the segment (`origin` + index in `c`) is a multiple of `step` (`crate::signals::row_step`): fixed in
+    /// the segment, so how a segment is cut into pieces changes nothing.
+    pub fn add(
+        &mut self,
+        model: &Model,
+        c: &Conditioned,
+        range: std::ops::Range<usize>,
+        (step, origin): (usize, usize),
+    ) -> Result<(), IdentifyError> {
         let n = model.dof();
         if c.joints != n {
             return Err(IdentifyError::Dof(c.joints, n));
         }
         let moving = moving_rows(c);
         let mut rows = BlockedRows::new(n, 2);
-        for_each_row(model, c, range, |i, y| {
+        let step = step.max(1);
+        let first = range.start + (step - (origin + range.start) % step) % step;
+        for_each_row(model, c, first..range.end, step, |i, y| {
             for j in (0..n).filter(|&j| moving[i * n + j]) {
                 rows.push(j, y, &[c.tau[0][i * n + j], c.tau[1][i * n + j]]);
             }
@@ -138,4 +150,83 @@ pub fn residuals(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::signals::{VelocitySource, condition, row_step};
+    use dynforge_recording::JointTrajectory;
+
+    /// A two-joint arm turning one way at all times (no rows lost to reversals), logged at 1 kHz.
+    fn arm_and_log(samples: usize) -> (Model, JointTrajectory) {
+        let link = |name: &str| {
+            format!(
+                r#"<link name="{name}"><inertial><origin xyz="0.1 0 0"/><mass value="2"/>
+                   <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.03"/></inertial></link>"#
+            )
+        };
+        let joint = |name: &str, parent: &str, child: &str, axis: &str| {
+            format!(
+                r#"<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>
+                   <origin xyz="0.2 0 0"/><axis xyz="{axis}"/>
+                   <limit lower="-1000" upper="1000" effort="100" velocity="100"/></joint>"#
+            )
+        };
+        let text = format!(
+            r#"<robot name="two"><link name="base"/>{}{}{}{}</robot>"#,
+            link("a"),
+            link("b"),
+            joint("j0", "base", "a", "0 0 1"),
+            joint("j1", "a", "b", "0 1 0")
+        );
+        let model = dynforge_robot::urdf::parse(&text, "two.urdf").expect("a valid URDF");
+        let mut log = JointTrajectory { names: vec!["j0".into(), "j1".into()], ..Default::default() };
+        for i in 0..samples {
+            let t = i as f64 * 1e-3;
+            let q = [1.5 * t + 0.3 * (2.0 * t).sin(), 1.0 * t + 0.2 * (3.0 * t).cos()];
+            log.t.push(t);
+            log.q.extend(q);
+            log.qd.extend([0.0, 0.0]);
+            log.tau.extend([q[0].sin() + 2.0, q[1].cos() + 1.0]);
+        }
+        (model, log)
+    }
+
+    /// Rows are thinned at sample indices fixed in the segment: sums over pieces conditioned apart (with the
+    /// filter's settling on either side, as `calibrate` cuts a long log) take exactly the rows of the whole, and the
+    /// same sums to the filter's settling error.
+    #[test]
+    fn thinned_rows_do_not_depend_on_how_a_segment_is_cut() {
+        let (model, log) = arm_and_log(6000);
+        let (cutoff, dt) = (20.0, 1e-3);
+        let step = row_step(VelocitySource::Positions, Some(cutoff), dt);
+        assert_eq!(step, 12, "1 kHz at 20 Hz: 4 rows per period of the cut-off");
+        let whole = {
+            let c = condition(&log, VelocitySource::Positions, cutoff);
+            let mut sums = RowSums::new(2);
+            sums.add(&model, &c, 0..c.len(), (step, 0)).expect("two joints");
+            sums.equations(EffortConvention::Sampled)
+        };
+        let pad = (4.0 / (cutoff * dt)).ceil() as usize;
+        let mut cut = RowSums::new(2);
+        for range in [0..1234usize, 1234..3001, 3001..6000] {
+            let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(log.len()));
+            let c = condition(&log.slice(lo..hi), VelocitySource::Positions, cutoff);
+            cut.add(&model, &c, range.start - lo..range.end - lo, (step, lo)).expect("two joints");
+        }
+        let cut = cut.equations(EffortConvention::Sampled);
+        assert_eq!(cut.rows(), whole.rows());
+        let rows = whole.rows() as f64 / 2.0;
+        // Every step-th sample but those within the rest margin (2 / (fc dt) = 100 samples) of the log's ends,
+        // where the differenced velocity is zero.
+        let expected = (6000.0 - 2.0 * 101.0) / step as f64;
+        assert!((rows - expected).abs() <= 1.0, "{rows} rows of each joint, {expected:.1} expected");
+        for j in 0..2 {
+            let (a, b) = (whole.joint(j), cut.joint(j));
+            // The filter settles to ~1e-7 of the signal within the pad (four time constants of the cut-off).
+            assert!((a.0 - b.0).norm() <= 1e-6 * a.0.norm(), "joint {j}: {} vs {}", a.0.norm(), b.0.norm());
+            assert!((a.1 - b.1).norm() <= 1e-6 * a.1.norm());
+        }
+    }
 }

@@ -68,8 +68,13 @@ pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
 pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
     let files = log_files(path)?;
     let mut bag = dynforge_shard::read(&files[0])?;
+    let mut rest = Vec::with_capacity(files.len() - 1);
     for file in &files[1..] {
-        let more = dynforge_shard::read(file)?;
+        rest.push(dynforge_shard::read(file)?);
+    }
+    // One allocation for every file's messages (an hour's log holds millions).
+    bag.joint_states.reserve_exact(rest.iter().map(|b| b.joint_states.len()).sum());
+    for more in rest {
         bag.joint_states.extend(more.joint_states);
         bag.robot_description = more.robot_description.or(bag.robot_description);
         bag.metadata.extend(more.metadata);

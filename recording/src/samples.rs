@@ -133,7 +133,9 @@ fn joint_states(
     }
     // In stamp order (stable: a repeated stamp keeps its first message).
     let mut order: Vec<usize> = (0..messages).collect();
-    order.sort_by_key(|&k| stamps[k]);
+    if !stamps.is_sorted() {
+        order.sort_by_key(|&k| stamps[k]);
+    }
     order.dedup_by_key(|k| stamps[*k]);
     // A republished message repeats a stamp now and then; a driver that does not stamp repeats one throughout.
     let repeated = messages - order.len();
@@ -149,9 +151,14 @@ fn joint_states(
     // Times from the first stamp, in exact nanoseconds before the conversion: a stamp of 1.7e9 s (a real clock)
     // converted whole would carry 2.4e-7 s of rounding into every period.
     let first = order.first().map_or(0, |&k| stamps[k]);
-    let pick = |column: &[f64]| order.iter().flat_map(|&k| column[k * n..(k + 1) * n].iter().copied()).collect();
     out.t = order.iter().map(|&k| (stamps[k] - first) as f64 * 1e-9).collect();
-    (out.q, out.qd, out.tau) = (pick(&q), pick(&qd), pick(&tau));
+    if order.len() == messages && order.iter().enumerate().all(|(i, &k)| i == k) {
+        // Already in order (what a recorder writes): the columns as they are, no copy of an hour's log.
+        (out.q, out.qd, out.tau) = (q, qd, tau);
+    } else {
+        let pick = |column: &[f64]| order.iter().flat_map(|&k| column[k * n..(k + 1) * n].iter().copied()).collect();
+        (out.q, out.qd, out.tau) = (pick(&q), pick(&qd), pick(&tau));
+    }
     Ok((out, with_velocity))
 }
 

@@ -34,7 +34,7 @@ use crate::normal::NormalEquations;
 use crate::rows::{RowSums, residuals};
 use crate::signals::{
     Conditioning, EffortConvention, VelocityChoice, VelocitySource, choose_cutoff, choose_velocity, condition,
-    noise_gain,
+    noise_gain, row_step,
 };
 use crate::solve::least_squares;
 
@@ -143,17 +143,18 @@ fn sum_rows(logs: &[Log], conditioning: &Conditioning) -> Result<(RowSums, Veloc
         .flat_map(|s| (0..s.len()).step_by(PIECE).map(move |a| (s, a..(a + PIECE).min(s.len()))))
         .collect();
     let pad = settling(source, cutoff, first.dt);
+    let step = row_step(source, cutoff, first.dt);
     let parts = dynforge_proto::parallel::map_in_order(&pieces, |(seg, range)| {
         let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
         let c = condition(&seg.slice(lo..hi), source, cutoff.unwrap_or(f64::MAX));
         let mut sums = RowSums::new(first.model.dof());
-        sums.add(&first.model, &c, range.start - lo..range.end - lo).map(|()| sums)
+        sums.add(&first.model, &c, range.start - lo..range.end - lo, (step, lo)).map(|()| sums)
     });
     let mut sums = RowSums::new(first.model.dof());
     for part in parts {
         sums.merge(&part?);
     }
-    Ok((sums, VelocityChoice { source, cutoff, reason }))
+    Ok((sums, VelocityChoice { source, cutoff, step, reason }))
 }
 
 /// Samples of a segment conditioned and summed as one piece, on one core: fixed, so the sums (and their rounding)
@@ -200,7 +201,8 @@ fn choose_convention(
 pub const CONVENTION_MARGIN: f64 = 0.1;
 
 /// The joints' noise (standard deviation of the residual [N m or N]) and the integrated autocorrelation time of the
-/// residual (in samples, at least 1) of the robot `calibrated` over the logs: over all of their samples up to
+/// residual (in samples, at least 1; and in rows taken every `velocity.step` samples) of the robot `calibrated` over
+/// the logs: over all of their samples up to
 /// [`NOISE_SAMPLES`], else over [`NOISE_BLOCKS`] blocks spread evenly through them (a noise level and a correlation
 /// time are told as well by ten minutes of samples as by hours, at a fraction of the cost).
 fn residual_noise(
@@ -208,7 +210,7 @@ fn residual_noise(
     logs: &[Log],
     velocity: &VelocityChoice,
     convention: EffortConvention,
-) -> (Vec<f64>, Vec<f64>) {
+) -> Vec<Correlation> {
     let n = calibrated.dof();
     let cutoff = velocity.cutoff.unwrap_or(f64::MAX);
     let pad = settling(velocity.source, velocity.cutoff, logs[0].dt);
@@ -218,16 +220,24 @@ fn residual_noise(
         let c = condition(&seg.slice(lo..hi), velocity.source, cutoff);
         residuals(calibrated, &c, range.start - lo..range.end - lo, convention)
     });
-    let stats: Vec<(f64, f64)> = dynforge_proto::parallel::map_in_order(&(0..n).collect::<Vec<_>>(), |&j| {
-        correlation(&series.iter().map(|b| b[j].as_slice()).collect::<Vec<_>>())
-    });
-    stats.into_iter().unzip()
+    dynforge_proto::parallel::map_in_order(&(0..n).collect::<Vec<_>>(), |&j| {
+        correlation(&series.iter().map(|b| b[j].as_slice()).collect::<Vec<_>>(), velocity.step)
+    })
 }
 
-/// Standard deviation and integrated autocorrelation time [samples] of a residual given in blocks (a `None` is a
-/// row left out). Lags are summed until Sokal's window closes (the lag passes five times the running time), so a
-/// residual correlated over `t` samples costs `~5 t` passes.
-fn correlation(blocks: &[&[Option<f64>]]) -> (f64, f64) {
+/// A residual's standard deviation and integrated autocorrelation times (`time` over every sample, `time_of_rows`
+/// over every `step`-th: what the rows summed see).
+#[derive(Debug, Clone, Copy, Default)]
+struct Correlation {
+    std: f64,
+    time: f64,
+    time_of_rows: f64,
+}
+
+/// Standard deviation and integrated autocorrelation times of a residual given in blocks (a `None` is a row left
+/// out), of every sample and of every `step`-th. Lags are summed until Sokal's window closes (the lag passes five
+/// times the running time), so a residual correlated over `t` samples costs `~5 t` passes.
+fn correlation(blocks: &[&[Option<f64>]], step: usize) -> Correlation {
     let lag = |k: usize| {
         let (mut sum, mut count) = (0.0, 0usize);
         for b in blocks {
@@ -242,17 +252,20 @@ fn correlation(blocks: &[&[Option<f64>]]) -> (f64, f64) {
     };
     let c0 = lag(0).unwrap_or(0.0);
     if c0 <= 0.0 {
-        return (0.0, 1.0);
+        return Correlation { std: 0.0, time: 1.0, time_of_rows: 1.0 };
     }
-    let mut t = 1.0;
+    let (mut t, mut rows) = (1.0, 1.0);
     for k in 1..=MAX_LAG {
         let Some(ck) = lag(k) else { break };
         t += 2.0 * ck / c0;
+        if k % step.max(1) == 0 {
+            rows += 2.0 * ck / c0;
+        }
         if k as f64 >= 5.0 * t {
             break;
         }
     }
-    (c0.sqrt(), t.max(1.0))
+    Correlation { std: c0.sqrt(), time: t.max(1.0), time_of_rows: rows.max(1.0) }
 }
 
 /// Samples of the logs the noise is measured on when they hold more (~9 min at 1 kHz), and the blocks they are
@@ -299,8 +312,10 @@ fn fit(
     options: &Options,
 ) -> Result<Identification, IdentifyError> {
     let n = model.dof();
-    if let Some(j) = (0..n).find(|&j| ne.joint(j).3 < MIN_ROWS) {
-        return Err(IdentifyError::TooFewRows { joint: model.joints()[j].name.clone(), rows: ne.joint(j).3 });
+    // MIN_ROWS counts samples, as `dynforge info` does: rows taken every `step` samples stand for `step` each.
+    let step = velocity.step.max(1);
+    if let Some(j) = (0..n).find(|&j| ne.joint(j).3 * step < MIN_ROWS) {
+        return Err(IdentifyError::TooFewRows { joint: model.joints()[j].name.clone(), rows: ne.joint(j).3 * step });
     }
     let ls = least_squares(ne)?;
     let prior = CoordinatePrior::of(model, options.spread)?;
@@ -311,16 +326,17 @@ fn fit(
     let mut weights: Vec<f64> =
         (0..n).map(|j| weight(j, ne_joint_rss(ne, j, &ls.pi) / ne.joint(j).3 as f64, 1.0)).collect();
     let mut solution = consistent::solve(ne, &weights, &prior, &prior.mean)?;
-    let mut measured = (Vec::new(), Vec::new());
+    let mut measured = vec![Correlation::default(); n];
     for _ in 0..2 {
         let calibrated = model_with(model, &consistent::parameters(n, &solution.x))?;
         measured = residual_noise(&calibrated, logs, velocity, convention);
-        weights = (0..n).map(|j| weight(j, measured.0[j].powi(2), measured.1[j])).collect();
+        weights = (0..n).map(|j| weight(j, measured[j].std.powi(2), measured[j].time_of_rows)).collect();
         solution = consistent::solve(ne, &weights, &prior, &solution.x)?;
     }
     let pi = consistent::parameters(n, &solution.x);
     let calibrated = model_with(model, &pi)?;
-    let (noise, correlation) = measured;
+    let noise = measured.iter().map(|m| m.std).collect();
+    let correlation = measured.iter().map(|m| m.time).collect();
     Ok(Identification::new(report::Fitted {
         model,
         calibrated,

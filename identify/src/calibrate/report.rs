@@ -194,7 +194,7 @@ impl Identification {
             samples,
             rows: f.ne.rows(),
             rate: 1.0 / f.logs[0].dt,
-            velocity: VelocityChoice { source: VelocitySource::Logged, cutoff: None, reason: String::new() },
+            velocity: VelocityChoice { source: VelocitySource::Logged, cutoff: None, step: 1, reason: String::new() },
             effort: f.convention,
             effort_reason: String::new(),
             rank: f.ls.rank,
@@ -260,11 +260,15 @@ impl std::fmt::Display for Identification {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
-            "{} log(s), {} samples at {:.0} Hz, {} torque rows",
+            "{} log(s), {} samples at {:.0} Hz, {} torque rows{}",
             self.logs.len(),
             self.samples,
             self.rate,
-            self.rows
+            self.rows,
+            match self.velocity.step {
+                1 => String::new(),
+                k => format!(" (every {k}th sample: at least 4 per period of the low-pass cut-off)"),
+            }
         )?;
         let v = &self.velocity;
         match v.cutoff {
