@@ -15,6 +15,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use crate::normal::NormalEquations;
+use crate::solve::{RANK_TOLERANCE, ZERO_COLUMN, pseudo_solve};
 use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
@@ -111,6 +112,49 @@ pub fn jacobian(n: usize, x: &DVector<f64>) -> DMatrix<f64> {
     jac
 }
 
+/// The MAP coordinates searched from the prior's mean and from [`data_start`], the lower objective kept: from the
+/// description alone the search can end in a local minimum (a link's inertia driven to a degenerate body while
+/// another absorbs its torque) that a start already explaining the torques avoids.
+pub fn solve_from_both(
+    ne: &NormalEquations,
+    weights: &[f64],
+    prior: &CoordinatePrior,
+) -> Result<Solution, IdentifyError> {
+    let nominal = solve(ne, weights, prior, &prior.mean)?;
+    let from_data = solve(ne, weights, prior, &data_start(ne, weights, prior)?)?;
+    Ok(if from_data.cost < nominal.cost { from_data } else { nominal })
+}
+
+/// A start that explains the torques: the prior's mean moved by the least-squares correction of the identifiable
+/// combinations only (minimum norm in Jacobi-scaled parameters, so what the torques cannot see stays at the
+/// description), each link in log-Cholesky coordinates where the result is a physical body and at the prior's mean
+/// where it is not, friction not negative.
+pub fn data_start(
+    ne: &NormalEquations,
+    weights: &[f64],
+    prior: &CoordinatePrior,
+) -> Result<DVector<f64>, IdentifyError> {
+    let n = ne.dof();
+    let data = Data::new(ne, weights);
+    let pi0 = DVector::from_vec(parameters(n, &prior.mean));
+    let largest = data.g.diagonal().amax();
+    let scale = data.g.diagonal().map(|d| if d > ZERO_COLUMN * largest { 1.0 / d.sqrt() } else { 0.0 });
+    let scaled = DMatrix::from_fn(scale.len(), scale.len(), |r, c| scale[r] * data.g[(r, c)] * scale[c]);
+    let residual = (&data.rhs - &data.g * &pi0).component_mul(&scale);
+    let (step, _) = pseudo_solve(&scaled, &residual, RANK_TOLERANCE)?;
+    let pi = pi0 + step.component_mul(&scale);
+    let mut x = prior.mean.clone();
+    for l in 0..n {
+        if let Some(theta) = standard::coordinates(&pi.as_slice()[NI * l..NI * (l + 1)]) {
+            x.as_mut_slice()[COORDINATES * l..COORDINATES * (l + 1)].copy_from_slice(&theta);
+        }
+    }
+    for k in COORDINATES * n..x.len() {
+        x[k] = pi[NI * n + k - COORDINATES * n].max(0.0);
+    }
+    Ok(x)
+}
+
 /// The weighted data: `G = sum_j w_j Y_j^T Y_j`, `g = sum_j w_j Y_j^T tau_j`, `c = sum_j w_j tau_j^T tau_j`.
 struct Data {
     g: DMatrix<f64>,
@@ -142,6 +186,8 @@ impl Data {
 #[derive(Debug, Clone)]
 pub struct Solution {
     pub x: DVector<f64>,
+    /// The objective at `x` (half the weighted residual sum of squares plus half the prior's squared distance).
+    pub cost: f64,
     /// Posterior covariance of `x` (Laplace, at the optimum).
     pub covariance: DMatrix<f64>,
     pub iterations: usize,
@@ -207,7 +253,7 @@ pub fn solve(
     let jac = jacobian(n, &x);
     let hessian = jac.transpose() * &data.g * &jac + DMatrix::from_diagonal(&precision);
     let covariance = Scaled::new(&hessian)?.inverse();
-    Ok(Solution { x, covariance, iterations, converged })
+    Ok(Solution { x, cost: f, covariance, iterations, converged })
 }
 
 /// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`) and `S`'s

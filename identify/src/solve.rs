@@ -15,7 +15,7 @@ pub const RANK_TOLERANCE: f64 = 1e-10;
 
 /// Squared column norms of the regressor below this fraction of the largest are rounding, not signal: a column
 /// `1e-10` of the largest in norm is beyond what double precision distinguishes after the normal equations.
-const ZERO_COLUMN: f64 = 1e-20;
+pub(crate) const ZERO_COLUMN: f64 = 1e-20;
 
 /// The classical estimate.
 #[derive(Debug, Clone)]
