@@ -3,6 +3,7 @@
 mod dataset;
 mod estimate;
 mod evaluate;
+mod excite;
 mod generate;
 mod identify;
 mod pipeline;
@@ -69,6 +70,10 @@ enum Command {
     /// Calibrate any serial arm's URDF to its logs (ROS 2 bags) by physics: every link's mass, centre of mass and
     /// inertia (physically valid) and every joint's friction, each with its standard deviation; no training needed.
     Identify(identify::IdentifyArgs),
+    /// Design excitation trajectories for a robot's URDF: Fourier series within its limits, starting and ending at
+    /// rest, optimized so that the logs recorded while running them identify its parameters best (self-collision
+    /// is not checked yet).
+    Excite(excite::ExciteArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(pipeline::PipelineArgs),
     /// Run the paper's dataset and architecture grids at a chosen scale and write both tables.
@@ -104,6 +109,7 @@ fn main() -> std::process::ExitCode {
         Command::Evaluate(args) => evaluate::run(args),
         Command::Estimate(args) => estimate::run(args),
         Command::Identify(args) => identify::run(args),
+        Command::Excite(args) => excite::run(args),
         Command::Pipeline(args) => pipeline::run(args),
         Command::Sweep(args) => sweep::run(args),
     };

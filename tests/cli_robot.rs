@@ -42,11 +42,18 @@ fn inspect_prints_the_model_and_its_labels() {
 fn bad_inputs_fail_with_a_message_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.urdf");
+    std::fs::write(&bad, "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='planar'><parent link='a'/><child link='b'/></joint></robot>").unwrap();
+    let out = dynforge(&["robot", "--inspect", bad.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("bad.urdf") && err.contains("'j'") && err.contains("unsupported type planar"), "{err}");
+    assert_eq!(err.matches("bad.urdf").count(), 1, "the file named once: {err}");
+    // A prismatic joint moves, but only within limits that bound a range.
     std::fs::write(&bad, "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='prismatic'><parent link='a'/><child link='b'/></joint></robot>").unwrap();
     let out = dynforge(&["robot", "--inspect", bad.to_str().unwrap()]);
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
-    assert!(err.contains("bad.urdf") && err.contains("'j'") && err.contains("prismatic"), "{err}");
+    assert!(err.contains("bad.urdf") && err.contains("'j'") && err.contains("do not bound a range"), "{err}");
 
     let cfg = dir.path().join("gen.toml");
     std::fs::write(&cfg, "tube_wall_fraction = [0.1, 0.7]\n").unwrap();

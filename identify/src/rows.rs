@@ -48,7 +48,7 @@ pub(crate) fn for_each_row(
     let n = c.joints;
     let mut data = Data::new(model);
     let start = range.start;
-    for i in usable(c, range).filter(|i| (i - start) % step == 0) {
+    for i in usable(c, range).filter(|i| (i - start).is_multiple_of(step)) {
         let row = i * n..(i + 1) * n;
         regressor(model, &mut data, &c.q[row.clone()], &c.qd[row.clone()], &c.qdd[row]);
         for j in 0..n {

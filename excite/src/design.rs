@@ -1,0 +1,326 @@
+//! The search for excitations: per trajectory a (1+1) evolution strategy over the free Fourier coefficients, each
+//! candidate scaled into the limits before it is judged, judged by the D-optimality of all trajectories' information
+//! together (so the second trajectory excites what the first left weak).
+
+use dynforge_robot::rng::Rng;
+use dynforge_robot::{Data, Model, regressor};
+use nalgebra::{DMatrix, DVector};
+
+use crate::ExciteError;
+use crate::fourier::Fourier;
+use crate::information::{Base, Quality, add_rows, scales};
+
+/// What to design and within which limits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Duration of each trajectory [s] (one period of its series).
+    pub duration: f64,
+    /// Trajectories.
+    pub count: usize,
+    /// Harmonics per joint; the highest frequency is `harmonics / duration` Hz.
+    pub harmonics: usize,
+    /// Pose at the start and end of every trajectory (default: the middle of each joint's range).
+    pub start: Option<Vec<f64>>,
+    /// Acceleration limit per joint, or one for all [rad/s^2 or m/s^2]: URDFs do not state one.
+    pub acceleration: Vec<f64>,
+    /// Shares of the URDF's velocity and effort limits the motion may use (the effort computed with the URDF's own
+    /// parameters, which are off: keep a margin).
+    pub velocity_share: f64,
+    pub effort_share: f64,
+    /// Share of each joint's range kept free at either end.
+    pub position_margin: f64,
+    /// Samples per second the information is summed over.
+    pub rate: f64,
+    /// Candidates judged per trajectory.
+    pub evaluations: usize,
+    pub seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            duration: 10.0,
+            count: 4,
+            harmonics: 5,
+            start: None,
+            acceleration: vec![5.0],
+            velocity_share: 0.8,
+            effort_share: 0.8,
+            position_margin: 0.05,
+            rate: 50.0,
+            evaluations: 1500,
+            seed: 0,
+        }
+    }
+}
+
+/// A designed set of excitations, with the quality of each alone and of all together, and of the random start the
+/// search began from (a random multi-sine within the same limits: what the design is worth).
+#[derive(Debug, Clone)]
+pub struct Design {
+    pub trajectories: Vec<Fourier>,
+    pub alone: Vec<Quality>,
+    pub together: Quality,
+    pub random_together: Quality,
+    /// Information of all trajectories together (scaled parameters), its base, and the scales.
+    pub information: DMatrix<f64>,
+    pub base: Base,
+    pub scales: Vec<f64>,
+    /// Per trajectory the peaks reached, as shares of the limits: position, velocity, acceleration, effort.
+    pub peaks: Vec<[f64; 4]>,
+}
+
+/// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
+struct Bounds {
+    start: Vec<f64>,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    speed: Vec<f64>,
+    acceleration: Vec<f64>,
+    effort: Vec<f64>,
+}
+
+impl Bounds {
+    fn new(model: &Model, o: &Options) -> Result<Self, ExciteError> {
+        let n = model.dof();
+        if !(o.acceleration.len() == 1 || o.acceleration.len() == n) {
+            return Err(ExciteError::Option(format!(
+                "{} acceleration limits given for {n} joints: give one for all or one per joint",
+                o.acceleration.len()
+            )));
+        }
+        let mut b = Bounds {
+            start: Vec::new(),
+            lower: Vec::new(),
+            upper: Vec::new(),
+            speed: Vec::new(),
+            acceleration: Vec::new(),
+            effort: Vec::new(),
+        };
+        for (j, joint) in model.joints().iter().enumerate() {
+            let l = &joint.limits;
+            // A continuous joint (no range) turns within a full turn around its start.
+            let (lo, hi) = if l.upper > l.lower && (l.upper - l.lower) < 1e3 {
+                (l.lower, l.upper)
+            } else {
+                (-std::f64::consts::PI, std::f64::consts::PI)
+            };
+            let margin = o.position_margin * (hi - lo);
+            let start = o.start.as_ref().map_or(0.5 * (lo + hi), |s| s[j]);
+            if !(start > lo + margin && start < hi - margin) {
+                return Err(ExciteError::Option(format!(
+                    "the start of joint '{}' ({start}) is not inside its range [{lo}, {hi}] less the margin",
+                    joint.name
+                )));
+            }
+            if !(l.velocity > 0.0 && l.effort > 0.0) {
+                return Err(ExciteError::Option(format!(
+                    "joint '{}' states no velocity or effort limit (velocity {}, effort {}): the URDF must give both",
+                    joint.name, l.velocity, l.effort
+                )));
+            }
+            b.start.push(start);
+            b.lower.push(lo + margin);
+            b.upper.push(hi - margin);
+            b.speed.push(o.velocity_share * l.velocity);
+            b.acceleration.push(if o.acceleration.len() == 1 { o.acceleration[0] } else { o.acceleration[j] });
+            b.effort.push(o.effort_share * l.effort);
+        }
+        if let Some(a) = b.acceleration.iter().find(|a| a.is_nan() || **a <= 0.0) {
+            return Err(ExciteError::Option(format!("acceleration limit {a} is not positive")));
+        }
+        Ok(b)
+    }
+}
+
+/// Samples one trajectory: its information (scaled) and its peaks as shares of the bounds (position, velocity,
+/// acceleration, effort). The effort is the URDF's own inverse dynamics with its friction.
+struct Sampler<'a> {
+    model: &'a Model,
+    bounds: &'a Bounds,
+    scales: DVector<f64>,
+    nominal: DVector<f64>,
+    samples: usize,
+    data: Data,
+}
+
+impl Sampler<'_> {
+    fn sample(&mut self, f: &Fourier, information: bool) -> (DMatrix<f64>, [f64; 4]) {
+        let n = self.model.dof();
+        let p = self.scales.len();
+        let mut w = DMatrix::zeros(if information { p } else { 0 }, if information { p } else { 0 });
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut peaks = [0.0f64; 4];
+        let b = self.bounds;
+        for k in 0..self.samples {
+            let t = f.period * k as f64 / self.samples as f64;
+            f.at(t, &mut q, &mut qd, &mut qdd);
+            let y = regressor(self.model, &mut self.data, &q, &qd, &qdd);
+            let tau = y * &self.nominal;
+            for j in 0..n {
+                let d = q[j] - b.start[j];
+                let room = if d >= 0.0 { b.upper[j] - b.start[j] } else { b.start[j] - b.lower[j] };
+                peaks[0] = peaks[0].max(d.abs() / room);
+                peaks[1] = peaks[1].max(qd[j].abs() / b.speed[j]);
+                peaks[2] = peaks[2].max(qdd[j].abs() / b.acceleration[j]);
+                peaks[3] = peaks[3].max(tau[j].abs() / b.effort[j]);
+            }
+            if information {
+                add_rows(&mut w, y, &self.scales);
+            }
+        }
+        (w, peaks)
+    }
+
+    /// The series of free coefficients `x` scaled so that it keeps every bound (kinematic peaks scale with the
+    /// coefficients; the effort, with gravity in it, does not: it is shrunk by steps until it fits), with its
+    /// information and peaks; `None` when even a tenth of it would not fit (the pose alone needs more effort).
+    fn fit(&mut self, x: &[f64], harmonics: usize, period: f64) -> Option<(Vec<f64>, DMatrix<f64>, [f64; 4])> {
+        let series = |x: &[f64]| Fourier::from_free(period, &self.bounds.start, harmonics, x);
+        let (_, peaks) = self.sample(&series(x), false);
+        // Between samples a trigonometric polynomial of degree N sampled M > 2N times per period rises at most by
+        // sec(pi N / M) over its largest sample (Ehlich and Zeller, 1964): so the kinematic bounds hold at every
+        // instant, not only at the samples.
+        let between = 1.0 / (std::f64::consts::PI * harmonics as f64 / self.samples as f64).cos();
+        let kinematic = peaks[0].max(peaks[1]).max(peaks[2]) * between;
+        if !(kinematic > 0.0 && kinematic.is_finite()) {
+            return None;
+        }
+        let mut scale = 1.0 / kinematic;
+        for _ in 0..24 {
+            let xs: Vec<f64> = x.iter().map(|v| v * scale).collect();
+            let (w, peaks) = self.sample(&series(&xs), true);
+            if peaks.iter().all(|&p| p <= 1.0 + 1e-9) {
+                return Some((xs, w, peaks));
+            }
+            scale *= 0.9;
+        }
+        None
+    }
+}
+
+/// Rate [Hz] the final trajectories' efforts are checked at.
+const DENSE_RATE: f64 = 1000.0;
+
+/// Designs `options.count` excitations for `model`.
+pub fn design(model: &Model, options: &Options) -> Result<Design, ExciteError> {
+    design_with(model, options, |_, _| {})
+}
+
+/// [`design`], calling `progress(done, total)` as candidates are judged.
+pub fn design_with(
+    model: &Model,
+    options: &Options,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Design, ExciteError> {
+    let n = model.dof();
+    if n == 0 {
+        return Err(ExciteError::Option("the robot has no moving joint".into()));
+    }
+    let positive = |v: f64| v > 0.0 && v.is_finite();
+    if options.harmonics < 2 || options.count == 0 || !positive(options.duration) || !positive(options.rate) {
+        return Err(ExciteError::Option(
+            "need at least 2 harmonics, 1 trajectory, a positive duration and rate".into(),
+        ));
+    }
+    if options.start.as_ref().is_some_and(|s| s.len() != n) {
+        return Err(ExciteError::Option(format!(
+            "the start pose has {} values for {n} joints",
+            options.start.as_ref().map_or(0, Vec::len)
+        )));
+    }
+    let bounds = Bounds::new(model, options)?;
+    let scales = scales(model);
+    let nominal = DVector::from_vec(dynforge_robot::parameters::dynamic_parameters(model));
+    let samples = (options.duration * options.rate).ceil().max(2.0 * options.harmonics as f64 + 2.0) as usize;
+    let mut sampler = Sampler {
+        model,
+        bounds: &bounds,
+        scales: DVector::from_vec(scales.clone()),
+        nominal,
+        samples,
+        data: Data::new(model),
+    };
+    let dims = n * Fourier::free_per_joint(options.harmonics);
+    let p = scales.len();
+    let series = |x: &[f64]| Fourier::from_free(options.duration, &bounds.start, options.harmonics, x);
+
+    // Random starts, one per trajectory, fitted into the bounds; their information together fixes the base.
+    let mut starts = Vec::with_capacity(options.count);
+    for k in 0..options.count {
+        let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
+        let fitted = (0..20).find_map(|_| {
+            let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
+            sampler.fit(&x, options.harmonics, options.duration)
+        });
+        starts.push(fitted.ok_or(ExciteError::Infeasible)?);
+    }
+    let random_information = starts.iter().fold(DMatrix::zeros(p, p), |acc, s| acc + &s.1);
+    let base = Base::of(&random_information);
+    let random_together = Quality::of(&base, &random_information);
+
+    // Each trajectory in turn improves the set's D-optimality with the others held.
+    let mut current: Vec<(Vec<f64>, DMatrix<f64>, [f64; 4])> = starts;
+    for k in 0..options.count {
+        let others =
+            current.iter().enumerate().filter(|(i, _)| *i != k).fold(DMatrix::zeros(p, p), |a, (_, s)| a + &s.1);
+        let judge = |w: &DMatrix<f64>| Quality::of(&base, &(&others + w)).log_det;
+        let mut rng = Rng::stream(options.seed, &[k as u64, 1]);
+        let mut best = current[k].clone();
+        let mut best_value = judge(&best.1);
+        let mut step = 0.3;
+        for e in 0..options.evaluations {
+            if e % 50 == 0 {
+                progress(k * options.evaluations + e, options.count * options.evaluations);
+            }
+            let size = best.0.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
+            let x: Vec<f64> = best.0.iter().map(|v| v + step * size * rng.normal()).collect();
+            match sampler.fit(&x, options.harmonics, options.duration) {
+                Some(candidate) if judge(&candidate.1) > best_value => {
+                    best_value = judge(&candidate.1);
+                    best = candidate;
+                    step = (step * 1.5).min(2.0);
+                }
+                _ => step = (step * 0.9).max(1e-3),
+            }
+        }
+        current[k] = best;
+    }
+    // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at) and the
+    // motion shrunk until it fits there too.
+    let mut dense = Sampler {
+        model,
+        bounds: &bounds,
+        scales: sampler.scales.clone(),
+        nominal: sampler.nominal.clone(),
+        samples: (options.duration * DENSE_RATE).ceil() as usize,
+        data: Data::new(model),
+    };
+    for s in current.iter_mut() {
+        for _ in 0..50 {
+            let (_, peaks) = dense.sample(&series(&s.0), false);
+            if peaks[3] <= 1.0 {
+                break;
+            }
+            s.0.iter_mut().for_each(|v| *v *= 0.99);
+            s.2[3] = peaks[3];
+        }
+        let (_, peaks) = dense.sample(&series(&s.0), false);
+        if peaks[3] > 1.0 {
+            return Err(ExciteError::Infeasible);
+        }
+        s.2 = [s.2[0].max(peaks[0]), s.2[1].max(peaks[1]), s.2[2].max(peaks[2]), peaks[3]];
+        s.1 = sampler.sample(&series(&s.0), true).0;
+    }
+    let information = current.iter().fold(DMatrix::zeros(p, p), |acc, s| acc + &s.1);
+    Ok(Design {
+        alone: current.iter().map(|s| Quality::of(&base, &s.1)).collect(),
+        together: Quality::of(&base, &information),
+        random_together,
+        peaks: current.iter().map(|s| s.2).collect(),
+        trajectories: current.iter().map(|s| series(&s.0)).collect(),
+        information,
+        base,
+        scales,
+    })
+}

@@ -1,0 +1,25 @@
+//! Excitation design for a robot described by its URDF: joint trajectories that start and end at rest, keep the
+//! URDF's limits, and make its dynamic parameters as identifiable from its torques as possible (D-optimality of the
+//! base parameters' information, as FloBaRoID and FIGAROH optimize it). What `identify` and the robot's family
+//! learn from then comes from motions chosen for them instead of whatever the robot happened to do.
+
+pub mod design;
+pub mod fourier;
+pub mod information;
+pub mod write;
+
+pub use design::{Design, Options, design, design_with};
+pub use fourier::Fourier;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ExciteError {
+    #[error("{0}")]
+    Option(String),
+    #[error(
+        "no motion fits the limits: even small motions around the start pose need more effort than the URDF's \
+         effort limits allow (check the start pose and the limits)"
+    )]
+    Infeasible,
+    #[error("{file}: {source}")]
+    Write { file: String, source: std::io::Error },
+}

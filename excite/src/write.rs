@@ -1,0 +1,133 @@
+//! The design written as a user runs it: per trajectory a CSV of time, positions, velocities and accelerations at the
+//! controller's rate and the series' coefficients as JSON (exact, to regenerate any rate), and a report.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
+use dynforge_robot::Model;
+
+use crate::information::expected_std;
+use crate::{Design, ExciteError, Options};
+
+const INERTIAL_NAMES: [&str; NI] = ["mass", "mx", "my", "mz", "ixx", "ixy", "iyy", "ixz", "iyz", "izz"];
+
+fn write(path: &Path, text: &str) -> Result<(), ExciteError> {
+    std::fs::write(path, text).map_err(|source| ExciteError::Write { file: path.display().to_string(), source })
+}
+
+/// Writes `excitation-K.csv` and `excitation-K.json` per trajectory and `report.md` into `dir` (created); returns
+/// the files written. `rate` is the CSV's [Hz]; `noise` the torque noise [N m] the expected deviations assume.
+pub fn write_design(
+    dir: &Path,
+    model: &Model,
+    design: &Design,
+    options: &Options,
+    rate: f64,
+    noise: f64,
+) -> Result<Vec<PathBuf>, ExciteError> {
+    std::fs::create_dir_all(dir).map_err(|source| ExciteError::Write { file: dir.display().to_string(), source })?;
+    let n = model.dof();
+    let names: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
+    let mut files = Vec::new();
+    for (k, f) in design.trajectories.iter().enumerate() {
+        let mut csv = String::from("t");
+        for what in ["q", "qd", "qdd"] {
+            for name in &names {
+                let _ = write!(csv, ",{what}_{name}");
+            }
+        }
+        csv.push('\n');
+        let samples = (f.period * rate).round() as usize;
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        for i in 0..=samples {
+            let t = i as f64 / rate;
+            f.at(t, &mut q, &mut qd, &mut qdd);
+            let _ = write!(csv, "{t:.6}");
+            for v in q.iter().chain(&qd).chain(&qdd) {
+                let _ = write!(csv, ",{v:.9}");
+            }
+            csv.push('\n');
+        }
+        let path = dir.join(format!("excitation-{k}.csv"));
+        write(&path, &csv)?;
+        files.push(path);
+        let json = serde_json::json!({"joints": names, "series": f});
+        let path = dir.join(format!("excitation-{k}.json"));
+        write(&path, &format!("{json:#}\n"))?;
+        files.push(path);
+    }
+    let path = dir.join("report.md");
+    write(&path, &report(model, design, options, noise))?;
+    files.push(path);
+    Ok(files)
+}
+
+/// The report: how the design was asked for, its quality beside the random multi-sines it started from, the peaks
+/// it reaches, and per parameter the standard deviation least squares would give at torque noise `noise`.
+pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> String {
+    let mut out = String::new();
+    let (d, r) = (&design.together, &design.random_together);
+    let _ = writeln!(out, "# Excitation of {}\n", model.name());
+    let _ = writeln!(
+        out,
+        "{} trajectories of {} s, {} harmonics ({:.2} Hz at most), starting and ending at rest at {:?}.\n",
+        options.count,
+        options.duration,
+        options.harmonics,
+        options.harmonics as f64 / options.duration,
+        design.trajectories[0].start
+    );
+    let _ = writeln!(
+        out,
+        "{} of {} parameter combinations are identifiable from torques (the base parameters).\n",
+        design.base.rank(),
+        design.scales.len()
+    );
+    let _ = writeln!(out, "| | mean log eigenvalue | condition number | covariance trace (unit noise) |");
+    let _ = writeln!(out, "|---|---:|---:|---:|");
+    let _ = writeln!(out, "| designed, together | {:.3} | {:.3e} | {:.3e} |", d.log_det, d.condition, d.trace);
+    let _ =
+        writeln!(out, "| random multi-sines, same limits | {:.3} | {:.3e} | {:.3e} |", r.log_det, r.condition, r.trace);
+    for (k, q) in design.alone.iter().enumerate() {
+        let _ = writeln!(out, "| trajectory {k} alone | {:.3} | {:.3e} | {:.3e} |", q.log_det, q.condition, q.trace);
+    }
+    let _ = writeln!(
+        out,
+        "\nThe design's base covariance trace is {:.1}x smaller than the random multi-sines'.\n",
+        r.trace / d.trace
+    );
+    let _ = writeln!(
+        out,
+        "Peaks reached, as shares of the limits (position range less margin, velocity, acceleration, effort):\n"
+    );
+    for (k, p) in design.peaks.iter().enumerate() {
+        let _ = writeln!(out, "- trajectory {k}: {:.2} / {:.2} / {:.2} / {:.2}", p[0], p[1], p[2], p[3]);
+    }
+    let _ = writeln!(
+        out,
+        "\nNot checked: collisions of the arm with itself or its surroundings (the URDF's collision meshes are not \
+         read yet). Run each trajectory in a simulator or slowly on the robot before running it at speed.\n"
+    );
+    let std = expected_std(&design.base, &design.information, &design.scales, noise);
+    let _ = writeln!(
+        out,
+        "\nExpected standard deviation of each parameter's identifiable part by least squares, with white torque noise \
+         of {noise} N m on every joint sampled at {} Hz (parameters about each link's joint frame; 0 = the torques \
+         see nothing of it):\n",
+        options.rate
+    );
+    let _ = writeln!(out, "| link | {} |", INERTIAL_NAMES.join(" | "));
+    let _ = writeln!(out, "|---|{}", "---:|".repeat(NI));
+    for (l, link) in model.links().iter().enumerate() {
+        let cells: Vec<String> = (0..NI).map(|k| format!("{:.2e}", std[NI * l + k])).collect();
+        let _ = writeln!(out, "| {} | {} |", link.name, cells.join(" | "));
+    }
+    let _ = writeln!(out, "\n| joint | coulomb | viscous |\n|---|---:|---:|");
+    let n = model.dof();
+    for (j, joint) in model.joints().iter().enumerate() {
+        let at = NI * n + NF * j;
+        let _ = writeln!(out, "| {} | {:.2e} | {:.2e} |", joint.name, std[at], std[at + 1]);
+    }
+    out
+}
