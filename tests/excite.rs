@@ -100,6 +100,38 @@ fn the_ur5s_excitation_keeps_its_limits_and_beats_random_multisines() {
             }
         }
     }
+    // The MCAP holds the same trajectory as one JointTrajectory, read by the official ROS 2 MCAP decoder.
+    let script = r#"
+import json, sys
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+with open(sys.argv[1], "rb") as f:
+    msgs = [(ch.topic, sch.name, m) for sch, ch, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+(topic, schema, m), = msgs
+p = m.points
+print(json.dumps({"topic": topic, "schema": schema, "names": list(m.joint_names), "count": len(p),
+    "last_t": p[-1].time_from_start.sec + 1e-9 * p[-1].time_from_start.nanosec,
+    "q1000": list(p[1000].positions), "qd1000": list(p[1000].velocities), "qdd1000": list(p[1000].accelerations)}))
+"#;
+    let py = std::env::var("DYNFORGE_PYTHON").unwrap();
+    let o = std::process::Command::new(&py).args(["-c", script]).arg(a.join("excitation-0.mcap")).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let decoded: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(decoded["topic"], "/joint_trajectory_controller/joint_trajectory");
+    assert_eq!(decoded["schema"], "trajectory_msgs/msg/JointTrajectory");
+    let names: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
+    assert_eq!(decoded["names"], serde_json::json!(names));
+    assert_eq!(decoded["count"], 6001);
+    assert!((decoded["last_t"].as_f64().unwrap() - 6.0).abs() < 1e-9);
+    let csv = std::fs::read_to_string(a.join("excitation-0.csv")).unwrap();
+    let row = &rows(&csv, n)[1000];
+    for (what, at) in [("q1000", 1), ("qd1000", 1 + n), ("qdd1000", 1 + 2 * n)] {
+        for j in 0..n {
+            // The CSV rounds to 1e-9.
+            let v = decoded[what][j].as_f64().unwrap();
+            assert!((v - row[at + j]).abs() < 1e-8, "{what} joint {j}: {v} vs {}", row[at + j]);
+        }
+    }
     // The same seed, the same trajectories.
     design(&b);
     for k in 0..2 {

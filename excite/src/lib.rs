@@ -22,4 +22,6 @@ pub enum ExciteError {
     Infeasible,
     #[error("{file}: {source}")]
     Write { file: String, source: std::io::Error },
+    #[error(transparent)]
+    Mcap(#[from] dynforge_shard::ShardError),
 }

@@ -1,10 +1,12 @@
 //! The design written as a user runs it: per trajectory a CSV of time, positions, velocities and accelerations at the
-//! controller's rate and the series' coefficients as JSON (exact, to regenerate any rate), and a report.
+//! controller's rate, the same as a JointTrajectory message in MCAP (what `ros2 bag play` sends a
+//! joint_trajectory_controller) and the series' coefficients as JSON (exact, to regenerate any rate), and a report.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
+use dynforge_proto::shard::TrajectoryPoint;
 use dynforge_robot::Model;
 
 use crate::information::expected_std;
@@ -16,7 +18,8 @@ fn write(path: &Path, text: &str) -> Result<(), ExciteError> {
     std::fs::write(path, text).map_err(|source| ExciteError::Write { file: path.display().to_string(), source })
 }
 
-/// Writes `excitation-K.csv` and `excitation-K.json` per trajectory and `report.md` into `dir` (created); returns
+/// Writes `excitation-K.csv`, `excitation-K.mcap` (a `trajectory_msgs/msg/JointTrajectory`) and `excitation-K.json`
+/// per trajectory and `report.md` into `dir` (created); returns
 /// the files written. `rate` is the CSV's [Hz]; `noise` the torque noise [N m] the expected deviations assume.
 pub fn write_design(
     dir: &Path,
@@ -31,6 +34,7 @@ pub fn write_design(
     let names: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
     let mut files = Vec::new();
     for (k, f) in design.trajectories.iter().enumerate() {
+        let mut points = Vec::new();
         let mut csv = String::from("t");
         for what in ["q", "qd", "qdd"] {
             for name in &names {
@@ -48,7 +52,17 @@ pub fn write_design(
                 let _ = write!(csv, ",{v:.9}");
             }
             csv.push('\n');
+            points.push(TrajectoryPoint {
+                positions: q.clone(),
+                velocities: qd.clone(),
+                accelerations: qdd.clone(),
+                time_from_start_ns: (i as f64 * 1e9 / rate).round() as u64,
+            });
         }
+        let path = dir.join(format!("excitation-{k}.mcap"));
+        let joint_names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
+        dynforge_shard::write_joint_trajectory(&path, &joint_names, &points)?;
+        files.push(path);
         let path = dir.join(format!("excitation-{k}.csv"));
         write(&path, &csv)?;
         files.push(path);

@@ -15,6 +15,9 @@ pub const TOPIC_JOINT_STATES: &str = "/joint_states";
 pub const TOPIC_ROBOT_DESCRIPTION: &str = "/robot_description";
 pub const SCHEMA_JOINT_STATE: &str = "sensor_msgs/msg/JointState";
 pub const SCHEMA_STRING: &str = "std_msgs/msg/String";
+pub const SCHEMA_JOINT_TRAJECTORY: &str = "trajectory_msgs/msg/JointTrajectory";
+/// Where a joint_trajectory_controller named `joint_trajectory_controller` takes its trajectories.
+pub const TOPIC_JOINT_TRAJECTORY: &str = "/joint_trajectory_controller/joint_trajectory";
 pub const SCHEMA_ENCODING: &str = "ros2msg";
 pub const MESSAGE_ENCODING: &str = "cdr";
 /// MCAP profile, as rosbag2 writes it.
@@ -45,6 +48,8 @@ pub fn robot_of_file_name(name: &str) -> Option<u64> {
 
 /// Full `ros2msg` definition of `sensor_msgs/msg/JointState` with its dependencies, as rosbag2 stores it.
 pub const JOINT_STATE_DEFINITION: &str = include_str!("schemas/sensor_msgs_JointState.ros2msg");
+/// `ros2msg` definition of `trajectory_msgs/msg/JointTrajectory`.
+pub const JOINT_TRAJECTORY_DEFINITION: &str = include_str!("schemas/trajectory_msgs_JointTrajectory.ros2msg");
 /// `ros2msg` definition of `std_msgs/msg/String`.
 pub const STRING_DEFINITION: &str = include_str!("schemas/std_msgs_String.ros2msg");
 
@@ -177,6 +182,38 @@ pub fn encode_joint_state(m: &JointState) -> Vec<u8> {
     w.f64s(&m.position);
     w.f64s(&m.velocity);
     w.f64s(&m.effort);
+    w.0
+}
+
+/// One point of a `trajectory_msgs/msg/JointTrajectory`: values per joint and its time from the start [ns].
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrajectoryPoint {
+    pub positions: Vec<f64>,
+    pub velocities: Vec<f64>,
+    pub accelerations: Vec<f64>,
+    pub time_from_start_ns: u64,
+}
+
+/// Encodes a JointTrajectory (zero stamp, empty frame, no efforts) of the joints `names` as CDR.
+pub fn encode_joint_trajectory(names: &[String], points: &[TrajectoryPoint]) -> Vec<u8> {
+    let n = names.len();
+    let mut w = Writer::new(64 + names.iter().map(|s| s.len() + 8).sum::<usize>() + points.len() * (24 * n + 32));
+    w.u32(0);
+    w.u32(0);
+    w.string("");
+    w.u32(n as u32);
+    for name in names {
+        w.string(name);
+    }
+    w.u32(points.len() as u32);
+    for p in points {
+        w.f64s(&p.positions);
+        w.f64s(&p.velocities);
+        w.f64s(&p.accelerations);
+        w.f64s(&[]);
+        w.u32((p.time_from_start_ns / 1_000_000_000) as u32);
+        w.u32((p.time_from_start_ns % 1_000_000_000) as u32);
+    }
     w.0
 }
 

@@ -112,6 +112,47 @@ fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError>
     file.sync_all().map_err(io_err(path))
 }
 
+/// Writes one `trajectory_msgs/msg/JointTrajectory` of the joints `names` on
+/// [`contract::TOPIC_JOINT_TRAJECTORY`] to a new MCAP file at `path` (written whole, then renamed): a trajectory as
+/// `ros2 bag play` hands it to a joint_trajectory_controller.
+pub fn write_joint_trajectory(
+    path: &Path,
+    names: &[String],
+    points: &[contract::TrajectoryPoint],
+) -> Result<(), ShardError> {
+    dynforge_proto::run_dir::replace_atomically(
+        path,
+        |tmp| {
+            let file = std::fs::File::create(tmp).map_err(io_err(tmp))?;
+            let me = mcap_err(tmp);
+            let mut w = mcap::WriteOptions::new()
+                .profile(contract::PROFILE)
+                .library(contract::LIBRARY)
+                .compression(Some(mcap::Compression::Zstd))
+                .create(BufWriter::new(file))
+                .map_err(&me)?;
+            let meta = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
+            let schema = w
+                .add_schema(
+                    contract::SCHEMA_JOINT_TRAJECTORY,
+                    contract::SCHEMA_ENCODING,
+                    contract::JOINT_TRAJECTORY_DEFINITION.as_bytes(),
+                )
+                .map_err(&me)?;
+            let channel = w
+                .add_channel(schema, contract::TOPIC_JOINT_TRAJECTORY, contract::MESSAGE_ENCODING, &meta)
+                .map_err(&me)?;
+            let header =
+                mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: 0, publish_time: 0 };
+            w.write_to_known_channel(&header, &contract::encode_joint_trajectory(names, points)).map_err(&me)?;
+            w.finish().map_err(&me)?;
+            let file = w.into_inner().into_inner().map_err(|e| io_err(tmp)(e.into_error()))?;
+            file.sync_all().map_err(io_err(tmp))
+        },
+        |p, e| io_err(p)(e),
+    )
+}
+
 /// A stable 64-bit content hash of a shard's bytes (FNV-1a), recorded in the ledger and checked by `verify`: cheap
 /// enough for workers to compute on every shard, and fixed forever (no dependency can change it).
 pub fn content_hash(bytes: &[u8]) -> u64 {
