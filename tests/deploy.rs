@@ -642,7 +642,8 @@ fn run_sh_stops_on_a_failed_job_and_never_suspends_a_released_merge() {
     // A generation that fails: run.sh says so and exits non-zero (kubectl wait for complete would wait forever).
     write("rendered.yaml", &rendered.replace("replace-with-a-readwritemany-class", "nfs"));
     let child = start();
-    until("the apply", &|| read("dynforge-generate.suspend") == "false");
+    // The stand-in applies the Jobs one after the other: wait for both.
+    until("the apply", &|| read("dynforge-generate.suspend") == "false" && !read("dynforge-merge.suspend").is_empty());
     assert_eq!(read("dynforge-merge.suspend"), "true", "the merge applied suspended");
     write("dynforge-generate.conditions", "FailureTarget Failed");
     let (code, out) = finish(child);

@@ -175,7 +175,7 @@ impl Sampler<'_> {
     /// The series of free coefficients `x` scaled so that it keeps every bound (kinematic peaks scale with the
     /// coefficients; the effort, with gravity in it, does not: it is shrunk by steps until it fits), with its
     /// information and peaks; `None` when even a tenth of it would not fit (the pose alone needs more effort).
-    fn fit(&mut self, x: &[f64], harmonics: usize, period: f64) -> Option<(Vec<f64>, DMatrix<f64>, [f64; 4])> {
+    fn fit(&mut self, x: &[f64], harmonics: usize, period: f64) -> Option<Candidate> {
         let series = |x: &[f64]| Fourier::from_free(period, &self.bounds.start, harmonics, x);
         let (_, peaks) = self.sample(&series(x), false);
         // Between samples a trigonometric polynomial of degree N sampled M > 2N times per period rises at most by
@@ -191,7 +191,7 @@ impl Sampler<'_> {
             let xs: Vec<f64> = x.iter().map(|v| v * scale).collect();
             let (w, peaks) = self.sample(&series(&xs), true);
             if peaks.iter().all(|&p| p <= 1.0 + 1e-9) {
-                return Some((xs, w, peaks));
+                return Some(Candidate { x: xs, information: w, peaks });
             }
             scale *= 0.9;
         }
@@ -213,22 +213,7 @@ pub fn design_with(
     options: &Options,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Design, ExciteError> {
-    let n = model.dof();
-    if n == 0 {
-        return Err(ExciteError::Option("the robot has no moving joint".into()));
-    }
-    let positive = |v: f64| v > 0.0 && v.is_finite();
-    if options.harmonics < 2 || options.count == 0 || !positive(options.duration) || !positive(options.rate) {
-        return Err(ExciteError::Option(
-            "need at least 2 harmonics, 1 trajectory, a positive duration and rate".into(),
-        ));
-    }
-    if options.start.as_ref().is_some_and(|s| s.len() != n) {
-        return Err(ExciteError::Option(format!(
-            "the start pose has {} values for {n} joints",
-            options.start.as_ref().map_or(0, Vec::len)
-        )));
-    }
+    check(model, options)?;
     let bounds = Bounds::new(model, options)?;
     let scales = scales(model);
     let nominal = DVector::from_vec(dynforge_robot::parameters::dynamic_parameters(model));
@@ -241,50 +226,31 @@ pub fn design_with(
         samples,
         data: Data::new(model),
     };
-    let dims = n * Fourier::free_per_joint(options.harmonics);
+    let dims = model.dof() * Fourier::free_per_joint(options.harmonics);
     let p = scales.len();
     let series = |x: &[f64]| Fourier::from_free(options.duration, &bounds.start, options.harmonics, x);
+    let sum = |c: &[Candidate]| c.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
 
     // Random starts, one per trajectory, fitted into the bounds; their information together fixes the base.
-    let mut starts = Vec::with_capacity(options.count);
+    let mut current = Vec::with_capacity(options.count);
     for k in 0..options.count {
         let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
         let fitted = (0..20).find_map(|_| {
             let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
             sampler.fit(&x, options.harmonics, options.duration)
         });
-        starts.push(fitted.ok_or(ExciteError::Infeasible)?);
+        current.push(fitted.ok_or(ExciteError::Infeasible)?);
     }
-    let random_information = starts.iter().fold(DMatrix::zeros(p, p), |acc, s| acc + &s.1);
+    let random_information = sum(&current);
     let base = Base::of(&random_information);
     let random_together = Quality::of(&base, &random_information);
 
     // Each trajectory in turn improves the set's D-optimality with the others held.
-    let mut current: Vec<(Vec<f64>, DMatrix<f64>, [f64; 4])> = starts;
     for k in 0..options.count {
-        let others =
-            current.iter().enumerate().filter(|(i, _)| *i != k).fold(DMatrix::zeros(p, p), |a, (_, s)| a + &s.1);
-        let judge = |w: &DMatrix<f64>| Quality::of(&base, &(&others + w)).log_det;
+        let others = sum(&current) - &current[k].information;
         let mut rng = Rng::stream(options.seed, &[k as u64, 1]);
-        let mut best = current[k].clone();
-        let mut best_value = judge(&best.1);
-        let mut step = 0.3;
-        for e in 0..options.evaluations {
-            if e % 50 == 0 {
-                progress(k * options.evaluations + e, options.count * options.evaluations);
-            }
-            let size = best.0.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
-            let x: Vec<f64> = best.0.iter().map(|v| v + step * size * rng.normal()).collect();
-            match sampler.fit(&x, options.harmonics, options.duration) {
-                Some(candidate) if judge(&candidate.1) > best_value => {
-                    best_value = judge(&candidate.1);
-                    best = candidate;
-                    step = (step * 1.5).min(2.0);
-                }
-                _ => step = (step * 0.9).max(1e-3),
-            }
-        }
-        current[k] = best;
+        let report = |e: usize| progress(k * options.evaluations + e, options.count * options.evaluations);
+        current[k] = improve(&mut sampler, options, &base, &others, current[k].clone(), &mut rng, report);
     }
     // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at) and the
     // motion shrunk until it fits there too.
@@ -296,31 +262,90 @@ pub fn design_with(
         samples: (options.duration * DENSE_RATE).ceil() as usize,
         data: Data::new(model),
     };
-    for s in current.iter_mut() {
+    for c in current.iter_mut() {
         for _ in 0..50 {
-            let (_, peaks) = dense.sample(&series(&s.0), false);
-            if peaks[3] <= 1.0 {
+            if dense.sample(&series(&c.x), false).1[3] <= 1.0 {
                 break;
             }
-            s.0.iter_mut().for_each(|v| *v *= 0.99);
-            s.2[3] = peaks[3];
+            c.x.iter_mut().for_each(|v| *v *= 0.99);
         }
-        let (_, peaks) = dense.sample(&series(&s.0), false);
-        if peaks[3] > 1.0 {
+        c.peaks = dense.sample(&series(&c.x), false).1;
+        if c.peaks[3] > 1.0 {
             return Err(ExciteError::Infeasible);
         }
-        s.2 = [s.2[0].max(peaks[0]), s.2[1].max(peaks[1]), s.2[2].max(peaks[2]), peaks[3]];
-        s.1 = sampler.sample(&series(&s.0), true).0;
+        c.information = sampler.sample(&series(&c.x), true).0;
     }
-    let information = current.iter().fold(DMatrix::zeros(p, p), |acc, s| acc + &s.1);
+    let information = sum(&current);
     Ok(Design {
-        alone: current.iter().map(|s| Quality::of(&base, &s.1)).collect(),
+        alone: current.iter().map(|c| Quality::of(&base, &c.information)).collect(),
         together: Quality::of(&base, &information),
         random_together,
-        peaks: current.iter().map(|s| s.2).collect(),
-        trajectories: current.iter().map(|s| series(&s.0)).collect(),
+        peaks: current.iter().map(|c| c.peaks).collect(),
+        trajectories: current.iter().map(|c| series(&c.x)).collect(),
         information,
         base,
         scales,
     })
+}
+
+/// A set of free coefficients kept within the bounds, with its information and peaks.
+#[derive(Debug, Clone)]
+struct Candidate {
+    x: Vec<f64>,
+    information: DMatrix<f64>,
+    peaks: [f64; 4],
+}
+
+fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
+    let n = model.dof();
+    if n == 0 {
+        return Err(ExciteError::Option("the robot has no moving joint".into()));
+    }
+    let positive = |v: f64| v > 0.0 && v.is_finite();
+    if options.harmonics < 2 || options.count == 0 || !positive(options.duration) || !positive(options.rate) {
+        return Err(ExciteError::Option(
+            "need at least 2 harmonics, 1 trajectory, a positive duration and rate".into(),
+        ));
+    }
+    match &options.start {
+        Some(s) if s.len() != n => {
+            Err(ExciteError::Option(format!("the start pose has {} values for {n} joints", s.len())))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// The (1+1) evolution strategy from `start`: a Gaussian step relative to the coefficients' size, kept when the
+/// set's D-optimality (with `others` held) rises; the step grows on success and shrinks on failure (Rechenberg's
+/// rule, roughly one success in five at equilibrium).
+fn improve(
+    sampler: &mut Sampler<'_>,
+    options: &Options,
+    base: &Base,
+    others: &DMatrix<f64>,
+    start: Candidate,
+    rng: &mut Rng,
+    mut progress: impl FnMut(usize),
+) -> Candidate {
+    let judge = |w: &DMatrix<f64>| Quality::of(base, &(others + w)).log_det;
+    let dims = start.x.len();
+    let mut best_value = judge(&start.information);
+    let mut best = start;
+    let mut step = 0.3;
+    for e in 0..options.evaluations {
+        if e % 50 == 0 {
+            progress(e);
+        }
+        let size = best.x.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
+        let x: Vec<f64> = best.x.iter().map(|v| v + step * size * rng.normal()).collect();
+        match sampler.fit(&x, options.harmonics, options.duration) {
+            Some(candidate) if judge(&candidate.information) > best_value => {
+                best_value = judge(&candidate.information);
+                best = candidate;
+                step = (step * 1.5).min(2.0);
+            }
+            _ => step = (step * 0.9).max(1e-3),
+        }
+    }
+    best
 }
