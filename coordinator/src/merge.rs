@@ -90,7 +90,7 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     let caches = partitions::plan(parts)?;
 
     // The output: ours before anything is written.
-    let _lock = RunLock::acquire(out, std::time::Duration::ZERO)?;
+    let _lock = RunLock::acquire(out, std::time::Duration::ZERO, "merge")?;
     let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
     if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
         return Err(MergeError::OutputNotEmpty(out.display().to_string()));

@@ -38,6 +38,9 @@ pub struct Pruned {
     pub shards: usize,
 }
 
+/// The lock's description of a prune, for anyone refused meanwhile.
+pub const PRUNING: &str = "dataset prepare --prune";
+
 /// Prunes the run directory `dir`: takes its lock (no generate may change it meanwhile), checks that it verifies
 /// complete, builds the cache of the estimator `kind` with window geometry `spec` that will hold the shards' data
 /// (`dynforge_dataset::prepare`), then records every present shard in the pruned list and deletes it.
@@ -52,7 +55,7 @@ pub fn prune(
     spec: &WindowSpec,
     mut progress: impl FnMut(&str, usize, usize) -> bool,
 ) -> Result<Pruned, PruneError> {
-    let _lock = RunLock::acquire(dir, Duration::ZERO)?;
+    let _lock = RunLock::acquire(dir, Duration::ZERO, PRUNING)?;
     let not_ready = |problem: String| PruneError::NotReady { dir: dir.display().to_string(), problem };
     let report = verify(dir, |k, n| {
         progress("verify", k, n);

@@ -30,7 +30,7 @@ pub enum RunStatus {
     Live(StatusMsg),
     /// None publishes here: the ledger's counts for the manifest's jobs. `holder` is who holds the directory's lock
     /// if someone does: a coordinator on another host sharing the directory (its status is in that host's memory).
-    Stopped { progress: Progress, pending: u64, holder: Option<String> },
+    Stopped { progress: Progress, pending: u64, holder: Option<crate::lock::Holder> },
 }
 
 /// The standing of the run in `dir`.
@@ -60,7 +60,8 @@ impl RunStatus {
             }),
             RunStatus::Stopped { progress: p, pending, holder } => serde_json::json!({
                 "live": holder.is_some(), "total": p.total, "done": p.done, "discarded": p.discarded,
-                "failed": p.failed, "reasons": p.reasons, "pending": pending, "holder": holder,
+                "failed": p.failed, "reasons": p.reasons, "pending": pending,
+                "holder": holder.as_ref().map(|h| h.to_string()),
             }),
         }
     }

@@ -9,6 +9,7 @@ use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
 use crate::ledger::{self, Status};
+use crate::lock::Holder;
 use crate::plan;
 use dynforge_proto::manifest::Manifest;
 
@@ -32,11 +33,17 @@ pub struct Report {
     pub corrupt: Vec<(String, String)>,
     /// Discards by reason code.
     pub reasons: BTreeMap<String, usize>,
-    /// Who holds the directory's lock, when a generation is live there (its files in flight are not counted).
-    pub live: Option<String>,
+    /// Who holds the directory's lock, when a generation (or a prune, ...) is live there (a generation's files in
+    /// flight are not counted).
+    pub live: Option<Holder>,
 }
 
 impl Report {
+    /// Whether a generation holds the directory: its workers may have shards in place not yet recorded.
+    pub fn generating(&self) -> bool {
+        self.live.as_ref().is_some_and(|h| h.what == crate::run::GENERATING)
+    }
+
     pub fn is_ok(&self) -> bool {
         self.missing.is_empty() && self.extra.is_empty() && self.corrupt.is_empty()
     }
@@ -72,8 +79,12 @@ pub enum Unverified {
 impl std::fmt::Display for Report {
     /// The counts, then one line per missing, extra and corrupt shard.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if let Some(holder) = &self.live {
-            writeln!(f, "a generation is live ({holder}): its files in flight are not counted")?;
+        match &self.live {
+            Some(h) if self.generating() => {
+                writeln!(f, "a generation is live ({}): its files in flight are not counted", h.process)?
+            }
+            Some(h) => writeln!(f, "in use by {h}")?,
+            None => {}
         }
         let reasons: Vec<String> = self.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
         let reasons = if reasons.is_empty() { String::new() } else { format!(" ({})", reasons.join(", ")) };
@@ -213,7 +224,7 @@ pub const QUARANTINE: &str = "quarantine";
 /// `DIR/quarantine/`, and each of those jobs gets a `failed` ledger entry naming the reason (a resume retries failed
 /// jobs). Takes the directory's lock, so it refuses while a generation runs. Returns the jobs marked.
 pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
-    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO)?;
+    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO, "verify --repair")?;
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let (mut ledger, entries) = ledger::Ledger::open(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();

@@ -64,7 +64,7 @@ pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError>
 }
 
 fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let file = dynforge_proto::run_dir::create_temporary(path).map_err(io_err(path))?;
     let me = mcap_err(path);
     let mut w = mcap::WriteOptions::new()
         .profile(contract::PROFILE)
@@ -112,16 +112,7 @@ fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError>
     file.sync_all().map_err(io_err(path))
 }
 
-/// A stable 64-bit content hash of a shard's bytes (FNV-1a), recorded in the ledger and checked by `verify`: cheap
-/// enough for workers to compute on every shard, and fixed forever (no dependency can change it).
-pub fn content_hash(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
+pub use dynforge_proto::content_hash;
 
 /// A decoded bag or shard.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -226,14 +217,6 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
 
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn content_hash_is_fnv1a_64() {
-        // Published FNV-1a 64 test vectors.
-        assert_eq!(super::content_hash(b""), 0xcbf2_9ce4_8422_2325);
-        assert_eq!(super::content_hash(b"a"), 0xaf63_dc4c_8601_ec8c);
-        assert_eq!(super::content_hash(b"foobar"), 0x8594_4171_f739_67e8);
-    }
-
     #[test]
     fn a_label_edited_in_place_is_refused_by_the_data_section_crc() {
         use super::*;

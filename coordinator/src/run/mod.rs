@@ -65,6 +65,8 @@ pub enum GenerateError {
     Ledger(#[from] LedgerError),
     #[error(transparent)]
     Ipc(#[from] IpcError),
+    #[error("{file}: cannot open the worker's log: {source}")]
+    WorkerLog { file: String, source: std::io::Error },
     #[error("starting worker {slot} ({program}): {source}")]
     Spawn { slot: usize, program: String, source: std::io::Error },
     #[error("interrupted: {finished} of {total} jobs are recorded; run the same command again to resume")]
@@ -97,6 +99,9 @@ fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
     Ok(n)
 }
 
+/// The lock's description of a generation, for anyone refused meanwhile.
+pub const GENERATING: &str = "generate";
+
 /// A generation in progress: the queue, what each worker runs, and the durable record.
 struct Run<'a> {
     cfg: &'a GenerateConfig,
@@ -117,7 +122,7 @@ struct Run<'a> {
 pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
     check_settings(cfg)?;
     // Nothing in the directory is touched before it is ours.
-    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT)?;
+    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT, GENERATING)?;
     let (ledger, finished) = open_run_dir(cfg, observer)?;
     let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
     let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };

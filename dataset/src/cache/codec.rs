@@ -2,7 +2,7 @@
 //! a damaged or truncated cache is detected and rebuilt instead of read.
 
 use dynforge_proto::NUM_LABELS;
-use dynforge_shard::content_hash;
+use dynforge_proto::content_hash;
 
 pub(crate) struct Encoder(Vec<u8>);
 

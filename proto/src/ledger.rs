@@ -13,8 +13,8 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::job::Job;
-use dynforge_shard::content_hash;
+use crate::content_hash;
+use crate::job::Job;
 
 /// How a job ended.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -147,7 +147,8 @@ impl Ledger {
     /// Opens (or creates) the ledger, returning its entries; cuts off a torn last line.
     pub fn open(path: &Path) -> Result<(Ledger, Vec<Entry>), LedgerError> {
         let io = |source| LedgerError::Io { path: path.to_path_buf(), source };
-        let mut file = OpenOptions::new().read(true).append(true).create(true).open(path).map_err(io)?;
+        let mut file = crate::run_dir::open_for_writing(OpenOptions::new().read(true).append(true).create(true), path)
+            .map_err(io)?;
         let mut bytes = Vec::new();
         std::io::Read::read_to_end(&mut file, &mut bytes).map_err(io)?;
         let (entries, valid) = parse_all(&String::from_utf8_lossy(&bytes), path)?;
