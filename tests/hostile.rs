@@ -4,9 +4,11 @@
 mod common;
 
 use common::dynforge;
-use std::path::Path;
-use std::process::Output;
-use std::time::Duration;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const EXE: &str = env!("CARGO_BIN_EXE_dynforge");
 
 fn arg(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -31,6 +33,63 @@ fn ok(args: &[&str]) -> String {
 fn generate(dir: &Path, robots: u32, trajectories: u32) {
     let (r, t) = (robots.to_string(), trajectories.to_string());
     ok(&["generate", "--out", arg(dir), "--robots", &r, "--trajectories", &t, "--seed", "3", "--workers", "2"]);
+}
+
+fn shards(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("shards")).unwrap().map(|e| e.unwrap().path()).collect();
+    v.sort();
+    v
+}
+
+/// Item 14: a prepare that could not read a shard writes no cache, so a later `prepare --prune` cannot take a cache
+/// without that shard's data for a complete one and delete the shard.
+#[test]
+fn a_shard_that_could_not_be_cached_is_never_pruned_without_its_data() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 4, 2);
+    let all = shards(&dir);
+    let saved = std::fs::read(&all[3]).unwrap();
+    std::fs::write(&all[3], &saved[..1000]).unwrap();
+    let o = dynforge(&["dataset", "prepare", arg(&dir)]);
+    assert!(!o.status.success() && stderr(&o).contains("1 shard(s) could not be cached"), "{}", stderr(&o));
+    let cached = std::fs::read_dir(dir.join("cache")).map_or(0, |l| l.count());
+    assert_eq!(cached, 0, "a cache without the unreadable shard was written");
+
+    std::fs::write(&all[3], &saved).unwrap();
+    let said = ok(&["dataset", "prepare", arg(&dir), "--prune"]);
+    assert!(said.contains(&format!("and {} recordings", all.len())), "not every shard is cached: {said}");
+    assert!(said.contains(&format!("{} shards pruned", all.len())), "{said}");
+    ok(&["verify", arg(&dir)]);
+}
+
+/// Item 14: a plain `prepare` takes the run's lock, so it cannot replace the complete cache of a prune in progress
+/// with one read from shards being deleted; and it is told what holds the directory (item 22).
+#[test]
+fn prepare_during_a_prune_is_refused_naming_the_prune() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 4, 2);
+    let n = shards(&dir).len();
+    let prune = Command::new(EXE)
+        .args(["dataset", "prepare", arg(&dir), "--prune"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The prune fits the generator's prior (seconds) with the lock held.
+    let start = Instant::now();
+    while dynforge_proto::lock::holder(&dir).is_none() {
+        assert!(start.elapsed() < Duration::from_secs(60), "the prune never took the lock");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let o = dynforge(&["dataset", "prepare", arg(&dir)]);
+    let prune = prune.wait_with_output().unwrap();
+    assert!(prune.status.success(), "{}", stderr(&prune));
+    assert!(!o.status.success(), "a prepare ran during the prune: {}", stdout(&o));
+    assert!(stderr(&o).contains("another dataset prepare --prune is using this directory (pid "), "{}", stderr(&o));
+    let said = ok(&["dataset", "prepare", arg(&dir)]);
+    assert!(said.contains(&format!("and {n} recordings (already cached)")), "{said}");
 }
 
 /// Item 22: a command refused by a run directory's lock is told which command holds it (a `prepare` was reported as
@@ -70,4 +129,22 @@ fn links_planted_in_a_run_directory_are_refused_not_written_through() {
     }
     ok(&["generate", "--out", arg(&dir), "--robots", "3", "--trajectories", "2", "--seed", "3"]);
     ok(&["verify", arg(&dir)]);
+}
+
+/// Item 21: what killed writers leave in `cache/` is removed by the next holder of the run's lock.
+#[test]
+fn a_killed_cache_writers_temporary_file_is_removed() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 4, 2);
+    std::fs::create_dir_all(dir.join("cache")).unwrap();
+    let stale = dir.join("cache").join(".physics-0123456789abcdef-0123456789abcdef.bin.4242.tmp");
+    std::fs::write(&stale, vec![0u8; 4096]).unwrap();
+    ok(&["dataset", "prepare", arg(&dir)]);
+    assert!(!stale.exists(), "the stale temporary file is still there");
+    // And by a generation (here: resumed, with nothing left to do).
+    let leftovers = [stale, dir.join(".ledger.tsv.4242.tmp")];
+    leftovers.iter().for_each(|f| std::fs::write(f, b"partial").unwrap());
+    generate(&dir, 4, 2);
+    assert!(leftovers.iter().all(|f| !f.exists()), "a generation left stale temporary files");
 }

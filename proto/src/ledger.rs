@@ -128,6 +128,18 @@ pub fn latest(entries: &[Entry]) -> BTreeMap<u64, &Entry> {
     entries.iter().map(|e| (e.job_id, e)).collect()
 }
 
+/// The shards the ledger `entries` of a run with dataset seed `seed` and engine `engine` records done (each job's
+/// latest record), by file name, with the content hash the worker that wrote it recorded.
+pub fn done_shards(entries: &[Entry], seed: u64, engine: &str) -> BTreeMap<String, u64> {
+    latest(entries)
+        .values()
+        .filter_map(|e| match e.status {
+            Status::Done { shard_hash, .. } => Some((e.shard_name(seed, engine), shard_hash)),
+            _ => None,
+        })
+        .collect()
+}
+
 /// Reads a ledger without changing it (for `status` and `verify`). A missing file is an empty ledger.
 pub fn read(path: &Path) -> Result<Vec<Entry>, LedgerError> {
     match std::fs::read(path) {

@@ -18,7 +18,8 @@
 //! **The temporary-file rule.** A file is written to a temporary file beside it, `.NAME.PID.tmp` (hidden, named after
 //! the final file and the writing process, so concurrent writers never share one), fsync'd, renamed over `NAME`, and
 //! the directory is fsync'd: readers see the old file or the new one, whole, never a part. Readers skip temporary
-//! files ([`is_temporary`]); a crashed writer's leftovers may be removed by whoever owns the directory.
+//! files ([`is_temporary`]); a crashed writer's leftovers are removed by whoever holds the directory's lock
+//! ([`crate::lock`], [`remove_temporaries`]).
 //!
 //! **No writing through links.** A temporary file is created anew (`O_EXCL`: whatever is in its place, a link
 //! included, is removed first, never written through), and the files appended to or locked in place (the ledger, the
@@ -70,6 +71,29 @@ pub fn temporary_path(path: &Path) -> PathBuf {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     dir.join(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Removes the temporary files that killed writers left in `dir` ([`is_temporary`]); returns how many. Only the
+/// holder of the run directory's lock may call it (every writer holds the lock, so none is live). A missing
+/// directory has none.
+pub fn remove_temporaries(dir: &Path) -> std::io::Result<usize> {
+    let listing = match std::fs::read_dir(dir) {
+        Ok(l) => l,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
+        Err(e) => return Err(e),
+    };
+    let mut n = 0;
+    for entry in listing {
+        let entry = entry?;
+        if is_temporary(&entry.file_name().to_string_lossy()) {
+            match std::fs::remove_file(entry.path()) {
+                Ok(()) => n += 1,
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    Ok(n)
 }
 
 /// Opens `path` with `options` (which write, append or lock it in place) without following a symbolic link there:

@@ -98,7 +98,17 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
 /// `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
     let (files, bag) = read_bag(path)?;
-    let path = &files[0];
+    recording(&files[0], bag, model)
+}
+
+/// [`read`] of a shard already in memory (`bytes`, the content of the file `path`), for readers that check the bytes
+/// themselves (against a run's ledger) before trusting them.
+pub fn read_shard_bytes(bytes: &[u8], path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
+    recording(path, dynforge_shard::read_bytes(bytes, path)?, model)
+}
+
+/// The recording of `bag`, read from `path` (its first file).
+fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Result<Recording, ReadError> {
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let model = match (model, &bag.robot_description) {

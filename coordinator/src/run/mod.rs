@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use dynforge_ipc::{Coordinator, IpcError, RunId};
 use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::job::Job;
-use dynforge_proto::run_dir::{LEDGER, LOGS, MANIFEST, SHARDS, is_temporary};
+use dynforge_proto::run_dir::{CACHE, LEDGER, LOGS, MANIFEST, SHARDS, remove_temporaries};
 use dynforge_proto::sim::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
@@ -82,19 +82,12 @@ pub enum GenerateError {
 /// coordinator get their kill signal as it dies, and release the lock within milliseconds.
 const LOCK_WAIT: Duration = Duration::from_secs(5);
 
-/// Removes temporary files that crashed writers left in the shard directory (only its owner may: see [`RunLock`]).
-fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
+/// Removes the temporary files that killed writers left in the run directory, its shards and its caches (only the
+/// lock's holder may: see [`RunLock`]); how many.
+fn remove_leftovers(dir: &Path) -> std::io::Result<usize> {
     let mut n = 0;
-    for entry in std::fs::read_dir(shards)? {
-        let entry = entry?;
-        let name = entry.file_name().to_string_lossy().to_string();
-        if is_temporary(&name) {
-            match std::fs::remove_file(entry.path()) {
-                Ok(()) => n += 1,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                Err(e) => return Err(e),
-            }
-        }
+    for d in [dir.to_path_buf(), dir.join(SHARDS), dir.join(CACHE)] {
+        n += remove_temporaries(&d)?;
     }
     Ok(n)
 }
@@ -226,9 +219,9 @@ fn open_run_dir(
         observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
     }
     let (ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
-    let removed = remove_leftovers(&cfg.dir.join(SHARDS)).map_err(dir_err)?;
+    let removed = remove_leftovers(&cfg.dir).map_err(dir_err)?;
     if removed > 0 {
-        observer.message(&format!("removed {removed} partial shard file(s) left by an interrupted run"));
+        observer.message(&format!("removed {removed} partial file(s) left by an interrupted run"));
     }
     Ok((ledger, finished_jobs(cfg, &entries, &pruned, observer)))
 }
@@ -315,7 +308,7 @@ impl Run<'_> {
         drop(self.procs);
         // Workers killed mid-write (dead, hung, interrupted) leave partial temporary files; no writer is left now.
         let dir_err = |source| GenerateError::Dir { dir: self.cfg.dir.display().to_string(), source };
-        remove_leftovers(&self.cfg.dir.join(SHARDS)).map_err(dir_err)?;
+        remove_leftovers(&self.cfg.dir).map_err(dir_err)?;
         let p = &mut self.progress;
         p.in_flight = 0;
         p.slots = vec![None; self.running.len()];

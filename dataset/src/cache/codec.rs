@@ -28,6 +28,13 @@ impl Encoder {
         self
     }
 
+    /// A length-prefixed byte string.
+    pub(crate) fn bytes(&mut self, v: &[u8]) -> &mut Self {
+        self.u64s([v.len() as u64]);
+        self.0.extend(v);
+        self
+    }
+
     pub(crate) fn finish(mut self) -> Vec<u8> {
         let check = content_hash(&self.0);
         self.0.extend(check.to_le_bytes());
@@ -55,6 +62,12 @@ impl<'a> Decoder<'a> {
 
     pub(crate) fn u64(&mut self) -> Option<u64> {
         self.values(1, u64::from_le_bytes)?.pop()
+    }
+
+    /// A byte string written by [`Encoder::bytes`].
+    pub(crate) fn bytes(&mut self) -> Option<&'a [u8]> {
+        let n = self.usize()?;
+        self.take(n)
     }
 
     /// A count or size, which must fit this machine.

@@ -10,7 +10,7 @@ use dynforge_dataset::examples::Examples;
 
 use dynforge_dataset::cache::evidence::PhysicsSet;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::cache::{CacheError, Skipped};
+use dynforge_dataset::cache::{CacheError, Loaded, Skipped};
 use dynforge_dataset::evidence::{self, Draw, EvidenceError, draw_seed};
 use dynforge_dataset::examples::ExampleRecord;
 use dynforge_dataset::examples::corpus::Corpus;
@@ -227,18 +227,13 @@ impl Session<'_> {
         }
         let robot = dataset_robot(self.data)?;
         let features = JacobianFeatures::new(&robot);
-        let (w, skipped) = CachedWindows::load_or_build(self.data, spec, &features, |k, n| {
+        let loaded = CachedWindows::load(self.data, spec, &features, None, |k, n| {
             observer.preprocessing("windows", k, n);
             !self.stop.load(Ordering::Relaxed)
         })?;
-        skip(observer, &skipped);
-        observer.message(&format!(
-            "{} windows of {} x {} values ({})",
-            w.count(),
-            spec.len,
-            w.width,
-            if w.hit { "from the cache" } else { "built and cached" }
-        ));
+        let origin = origin(observer, &loaded);
+        let w = loaded.cache;
+        observer.message(&format!("{} windows of {} x {} values ({origin})", w.count(), spec.len, w.width));
         Ok((w, features, robot))
     }
 
@@ -322,17 +317,17 @@ impl Session<'_> {
                 evidence::generator_prior(&generator_cfg, seed)?
             }
         };
-        let (set, skipped) = PhysicsSet::load_or_build(self.data, &spec, &prior, |k, n| {
+        let loaded = PhysicsSet::load(self.data, &spec, &prior, None, |k, n| {
             observer.preprocessing("physics", k, n);
             !self.stop.load(Ordering::Relaxed)
         })?;
-        skip(observer, &skipped);
+        let origin = origin(observer, &loaded);
+        let set = loaded.cache;
         observer.message(&format!(
-            "physics of {} windows and {} recordings in {} prior coordinates ({})",
+            "physics of {} windows and {} recordings in {} prior coordinates ({origin})",
             set.windows.len(),
             set.recordings.len(),
             prior.rank(),
-            if set.hit { "from the cache" } else { "computed and cached" }
         ));
         let record = ExampleRecord {
             generated_per_epoch: self.recipe.generated_per_epoch,
@@ -410,6 +405,16 @@ impl Session<'_> {
                 }
             }
         }
+    }
+}
+
+/// Where a cache came from, as the session's message says it; the shards skipped on the way are warned of.
+fn origin<C>(observer: &mut dyn SessionObserver, loaded: &Loaded<C>) -> String {
+    skip(observer, &loaded.skipped);
+    match (&loaded.unwritten, loaded.hit) {
+        (_, true) => "from the cache".into(),
+        (Some(why), false) => format!("built; {why}"),
+        (None, false) => "built and cached".into(),
     }
 }
 
