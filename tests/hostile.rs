@@ -131,6 +131,143 @@ fn links_planted_in_a_run_directory_are_refused_not_written_through() {
     ok(&["verify", arg(&dir)]);
 }
 
+/// `dynforge args` with `env`, which must end within `limit`: killed and reported otherwise.
+fn bounded(args: &[&str], env: &[(&str, &str)], limit: Duration) -> Output {
+    let child = Command::new(EXE)
+        .args(args)
+        .envs(env.iter().copied())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_bounded(child, limit)
+}
+
+fn wait_bounded(mut child: std::process::Child, limit: Duration) -> Output {
+    let start = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let o = child.wait_with_output().unwrap();
+            panic!("still running after {limit:?}: {}", stderr(&o));
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Item 15: a worker that never gets through its start-up (stopped, stuck) is replaced after the start deadline, and
+/// after three failed starts in a row the run ends with an error naming the worker's log, instead of waiting with
+/// nothing in flight for ever.
+#[test]
+fn workers_that_never_start_end_the_run_with_an_error_naming_their_log() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    let args = ["generate", "--out", arg(&dir), "--robots", "1", "--trajectories", "2", "--workers", "1"];
+    let o = bounded(
+        &[&args[..], &["--job-timeout", "1"]].concat(),
+        &[("DYNFORGE_FAULT_WORKER_START_STALL", "3600")],
+        Duration::from_secs(120),
+    );
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.contains("no worker could be started") && e.contains("was not ready within 5 s"), "{e}");
+    assert!(e.contains(&format!("{}", dir.join("logs").join("worker-0.log").display())), "{e}");
+    assert_eq!(e.matches("starting it again").count(), 2, "{e}");
+    // Nothing was lost: the same command without the fault does the jobs.
+    let o = bounded(&args, &[], Duration::from_secs(120));
+    assert!(o.status.success(), "{}", stderr(&o));
+    ok(&["verify", arg(&dir)]);
+}
+
+/// Item 15: replacement workers that fail at once (here: garbage appended to the manifest mid-run) are not restarted
+/// for ever: the run ends, saying why and where the worker's log is; once the manifest is repaired it resumes.
+#[test]
+fn replacement_workers_that_fail_at_start_end_the_run_with_their_error() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    let args = ["generate", "--out", arg(&dir), "--robots", "6", "--trajectories", "16", "--workers", "2"];
+    let child = Command::new(EXE).args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let ledger = dir.join("ledger.tsv");
+    let start = Instant::now();
+    while std::fs::read_to_string(&ledger).map_or(0, |l| l.lines().count()) < 3 {
+        assert!(start.elapsed() < Duration::from_secs(60), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let manifest = std::fs::read(dir.join("manifest.toml")).unwrap();
+    let mut broken = manifest.clone();
+    broken.extend(b"garbage\n");
+    std::fs::write(dir.join("manifest.toml"), &broken).unwrap();
+    for w in workers_of(child.id()) {
+        let _ = Command::new("kill").args(["-9", &w.to_string()]).status();
+    }
+    let o = wait_bounded(child, Duration::from_secs(60));
+    let e = stderr(&o);
+    assert!(!o.status.success(), "{e}");
+    assert!(e.contains("no worker could be started") && e.contains("not a dynforge run manifest"), "{e}");
+    assert!(e.contains("worker-0.log") || e.contains("worker-1.log"), "{e}");
+    std::fs::write(dir.join("manifest.toml"), &manifest).unwrap();
+    let o = bounded(&args, &[], Duration::from_secs(300));
+    assert!(o.status.success(), "{}", stderr(&o));
+    ok(&["verify", arg(&dir)]);
+}
+
+/// Process ids whose parent is `pid`.
+fn workers_of(pid: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|p| {
+            std::fs::read_to_string(format!("/proc/{p}/stat"))
+                .ok()
+                .and_then(|s| {
+                    s.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1).map(str::to_string))
+                })
+                .is_some_and(|ppid| ppid == pid.to_string())
+        })
+        .collect()
+}
+
+/// Item 15: the run's shared-memory files are its user's alone (iceoryx2 makes its management segment writable by
+/// everyone: another user wrote into it, and every worker started after failed).
+#[test]
+fn a_runs_shared_memory_is_writable_by_its_owner_only() {
+    use std::os::unix::fs::PermissionsExt;
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    let args = ["generate", "--out", arg(&dir), "--robots", "2", "--trajectories", "2", "--workers", "2"];
+    // Each job stalls: the run stays live while its files are looked at.
+    let child = Command::new(EXE)
+        .args(args)
+        .env("DYNFORGE_FAULT_WORKER_STALL", "30")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let prefix = format!("{}_", dynforge_ipc::RunId::for_dir(&dir).unwrap());
+    let files = || -> Vec<(String, u32)> {
+        std::fs::read_dir("/dev/shm")
+            .unwrap()
+            .filter_map(Result::ok)
+            .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+            .filter_map(|e| {
+                Some((e.file_name().to_string_lossy().into_owned(), e.metadata().ok()?.permissions().mode()))
+            })
+            .collect()
+    };
+    let start = Instant::now();
+    // Both workers joined: their jobs' services exist, the management segment too.
+    while !files().iter().any(|(n, _)| n.ends_with("global_mgmt")) || workers_of(child.id()).len() < 2 {
+        assert!(start.elapsed() < Duration::from_secs(60), "the run never started: {:?}", files());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let open: Vec<(String, u32)> = files().into_iter().filter(|(_, mode)| mode & 0o022 != 0).collect();
+    let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
+    let _ = wait_bounded(child, Duration::from_secs(60));
+    assert!(open.is_empty(), "writable by others: {open:?}");
+}
+
 /// Item 21: what killed writers leave in `cache/` is removed by the next holder of the run's lock.
 #[test]
 fn a_killed_cache_writers_temporary_file_is_removed() {

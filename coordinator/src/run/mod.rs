@@ -23,6 +23,7 @@ use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::lock::{LockError, RunLock};
 use crate::plan::{self, Partition};
 use dynforge_proto::manifest::{Manifest, ManifestError};
+use liveness::Start;
 use processes::Processes;
 pub use progress::{Observer, Progress};
 
@@ -71,6 +72,8 @@ pub enum GenerateError {
     Spawn { slot: usize, program: String, source: std::io::Error },
     #[error("interrupted: {finished} of {total} jobs are recorded; run the same command again to resume")]
     Interrupted { finished: u64, total: u64 },
+    #[error("no worker could be started ({why}); {finished} of {total} jobs are recorded, the same command resumes")]
+    NoWorkers { why: String, finished: u64, total: u64 },
     #[error(
         "{failed} job(s) failed (reasons in {dir}/{LEDGER} and the worker logs in {dir}/{LOGS}); rerun the same \
          command to retry them"
@@ -102,12 +105,16 @@ struct Run<'a> {
     pending: VecDeque<Job>,
     /// Per worker slot: its job and when it was sent.
     running: Vec<Option<(Job, Instant)>>,
+    /// Per worker slot: its start-up ([`liveness`]).
+    starts: Vec<Start>,
     /// Failed attempts per job id.
     attempts: HashMap<u64, u32>,
     progress: Progress,
     ipc: Coordinator,
     procs: Processes,
     interrupted: bool,
+    /// Why the run ends before its jobs do: no worker could be started.
+    no_workers: Option<String>,
     started: Instant,
 }
 
@@ -145,11 +152,13 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
         ledger,
         pending,
         running: vec![None; workers],
+        starts: vec![Start::new(); workers],
         attempts: HashMap::new(),
         progress,
         ipc,
         procs,
         interrupted: false,
+        no_workers: None,
         started: Instant::now(),
     };
     run.drive(observer)
@@ -263,7 +272,7 @@ impl Run<'_> {
         let (mut last_status, mut last_liveness) = (Instant::now() - Duration::from_secs(1), Instant::now());
         loop {
             self.dispatch()?;
-            if self.busy() == 0 && (self.pending.is_empty() || self.interrupted) {
+            if self.busy() == 0 && (self.pending.is_empty() || self.interrupted || self.no_workers.is_some()) {
                 break;
             }
             self.receive(observer)?;
@@ -317,6 +326,9 @@ impl Run<'_> {
         observer.update(p);
         if self.interrupted {
             return Err(GenerateError::Interrupted { finished: p.finished(), total: p.total });
+        }
+        if let Some(why) = self.no_workers {
+            return Err(GenerateError::NoWorkers { why, finished: p.finished(), total: p.total });
         }
         Ok(self.progress)
     }

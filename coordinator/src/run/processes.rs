@@ -83,14 +83,14 @@ impl Processes {
         }
     }
 
-    /// Slots whose process has exited (before or without the coordinator noticing through iceoryx2).
-    pub(super) fn exited(&mut self) -> Vec<usize> {
+    /// Slots whose process has exited (before or without the coordinator noticing through iceoryx2), with how.
+    pub(super) fn exited(&mut self) -> Vec<(usize, std::process::ExitStatus)> {
         let mut out = Vec::new();
         for (k, c) in self.children.iter_mut().enumerate() {
             if let Some(child) = c
-                && matches!(child.try_wait(), Ok(Some(_)))
+                && let Ok(Some(status)) = child.try_wait()
             {
-                out.push(k);
+                out.push((k, status));
             }
         }
         out
