@@ -268,6 +268,60 @@ fn a_runs_shared_memory_is_writable_by_its_owner_only() {
     assert!(open.is_empty(), "writable by others: {open:?}");
 }
 
+/// Items 20 and 22: flags out of range are refused before anything runs, saying what the flag takes: no panic, no
+/// abort, no message about something else.
+#[test]
+fn flags_out_of_range_are_refused_saying_what_they_take() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    let refused = |args: &[&str], said: &str| {
+        let o = bounded(args, &[], Duration::from_secs(120));
+        let e = stderr(&o);
+        assert!(matches!(o.status.code(), Some(1 | 2)), "{args:?}: {:?} {e}", o.status);
+        assert!(e.contains(said), "{args:?}: {e}");
+    };
+    let generating = ["generate", "--out", arg(&dir), "--trajectories", "1"];
+    refused(&[&generating[..], &["--robots", "-1"]].concat(), "'--robots <ROBOTS>': expected a whole number from 1 to");
+    refused(&[&generating[..], &["--robots", "10000000000"]].concat(), "expected a whole number from 1 to 100000000");
+    assert!(!dir.join("manifest.toml").exists(), "a refused run wrote its manifest");
+    // More workers than a few per core only cost memory: started are 4 per core.
+    let o =
+        bounded(&[&generating[..], &["--robots", "64", "--workers", "10000"]].concat(), &[], Duration::from_secs(300));
+    assert!(o.status.success() && stderr(&o).contains("--workers 10000: starting "), "{}", stderr(&o));
+    let cores = std::thread::available_parallelism().unwrap().get();
+    let started = std::fs::read_dir(dir.join("logs")).unwrap().count();
+    assert!(started <= 4 * cores, "{started} worker processes started on {cores} cores");
+
+    let data = root.path().join("data");
+    generate(&data, 5, 2);
+    let ckpt = root.path().join("ckpt");
+    let train = ["train", arg(&data), "--out", arg(&ckpt), "--epochs", "1"];
+    refused(&[&train[..], &["--generated", "18446744073709551615"]].concat(), "expected a whole number from 1 to");
+    refused(&[&train[..], &["--generated", "1000000000"]].concat(), "--generated 1000000000: an epoch's robots");
+    refused(&[&train[..], &["--dim", "1000000000"]].concat(), "'--dim <DIM>': expected a whole number");
+    refused(&[&train[..], &["--dim", "16000000"]].concat(), "GB of memory; this machine has");
+    refused(&[&train[..], &["--layers", "100000000"]].concat(), "'--layers <LAYERS>': expected a whole number");
+    refused(&[&train[..], &["--lr", "nan"]].concat(), "'--lr <LR>': expected a positive finite number");
+    refused(&[&train[..], &["--lr", "-1"]].concat(), "'--lr <LR>': expected a positive finite number");
+}
+
+/// Item 20: a manifest of a trillion robots (written by a run of a size refused since: ten billion robots aborted
+/// `verify` and hung `status`) is counted, not listed: `verify` and `status` answer at once.
+#[test]
+fn verify_and_status_count_a_huge_plan_without_listing_it() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 2, 2);
+    let m = dynforge_proto::manifest::Manifest::load(&dir).unwrap().unwrap();
+    let huge = dynforge_proto::manifest::Manifest { robots: 1_000_000_000_000, ..m };
+    std::fs::write(dir.join("manifest.toml"), huge.to_toml()).unwrap();
+    let o = bounded(&["status", arg(&dir)], &[], Duration::from_secs(30));
+    assert!(o.status.success() && stdout(&o).contains("4/2000000000000 jobs"), "{}{}", stdout(&o), stderr(&o));
+    let o = bounded(&["verify", arg(&dir)], &[], Duration::from_secs(30));
+    assert!(stdout(&o).contains("2000000000000 jobs planned: 4 done"), "{}{}", stdout(&o), stderr(&o));
+    assert!(stdout(&o).contains("1999999999996 pending"), "{}", stdout(&o));
+}
+
 /// Item 21: what killed writers leave in `cache/` is removed by the next holder of the run's lock.
 #[test]
 fn a_killed_cache_writers_temporary_file_is_removed() {
@@ -284,4 +338,25 @@ fn a_killed_cache_writers_temporary_file_is_removed() {
     leftovers.iter().for_each(|f| std::fs::write(f, b"partial").unwrap());
     generate(&dir, 4, 2);
     assert!(leftovers.iter().all(|f| !f.exists()), "a generation left stale temporary files");
+}
+
+/// Item 21: ledger records of jobs the manifest does not plan are refused by `generate` (which counted them as done),
+/// not counted by `status`, and named by `verify`.
+#[test]
+fn ledger_records_outside_the_plan_are_refused() {
+    use dynforge_proto::ledger::{Entry, Ledger, Status};
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 2, 2);
+    let (mut ledger, _) = Ledger::open(&dir.join("ledger.tsv")).unwrap();
+    let status = Status::Done { samples: 10, shard_hash: 7 };
+    ledger.append(&Entry { job_id: 99, robot: 49, trajectory: 1, status }).unwrap();
+    drop(ledger);
+    let o = dynforge(&["generate", "--out", arg(&dir), "--robots", "2", "--trajectories", "2", "--seed", "3"]);
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("ledger.tsv records 1 job(s) that"), "{e}");
+    assert!(e.contains("job 99, robot 49 trajectory 1"), "{e}");
+    assert!(ok(&["status", arg(&dir)]).contains("4/4 jobs finished (done 4"));
+    let o = dynforge(&["verify", arg(&dir)]);
+    assert!(!o.status.success() && stdout(&o).contains("ledger job 99: not a job of this run's manifest"));
 }

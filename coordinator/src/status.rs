@@ -8,7 +8,7 @@ use dynforge_ipc::{RunId, StatusMsg, StatusReader};
 use dynforge_proto::run_dir::LEDGER;
 
 use crate::ledger;
-use crate::plan;
+use crate::plan::Plan;
 use crate::run::Progress;
 use dynforge_proto::manifest::Manifest;
 
@@ -42,8 +42,11 @@ pub fn status(dir: &Path) -> Result<RunStatus, StatusError> {
         return Ok(RunStatus::Live(s));
     }
     let manifest = Manifest::load(dir)?.ok_or_else(|| StatusError::NoManifest(dir.display().to_string()))?;
-    let entries = ledger::read(&dir.join(LEDGER))?;
-    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
+    let plan = Plan::of(&manifest);
+    // Records of jobs the manifest does not plan are not its progress (`verify` names them).
+    let entries: Vec<ledger::Entry> =
+        ledger::read(&dir.join(LEDGER))?.into_iter().filter(|e| plan.records(e)).collect();
+    let total = plan.len();
     let progress = Progress::from_ledger(total, &entries);
     let pending = total.saturating_sub(progress.finished());
     Ok(RunStatus::Stopped { progress, pending, holder: crate::lock::holder(dir) })

@@ -10,7 +10,7 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 
 use crate::ledger::{self, Status};
 use crate::lock::Holder;
-use crate::plan;
+use crate::plan::Plan;
 use dynforge_proto::manifest::Manifest;
 
 /// What `verify` found.
@@ -160,14 +160,12 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
         path: dir.join(dynforge_proto::run_dir::PRUNED).display().to_string(),
         source,
     })?;
-    let planned: BTreeMap<u64, Job> =
-        plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition)
-            .map(|j| (plan::job_id(&j, manifest.trajectories), j))
-            .collect();
-    report.planned = planned.len();
+    let plan = Plan::of(&manifest);
+    report.planned = plan.len() as usize;
     let latest = ledger::latest(&entries);
     let mut expected_files = BTreeSet::new();
     let total = latest.len();
+    let mut recorded = 0;
     for (k, (id, e)) in latest.iter().enumerate() {
         let job = e.job(manifest.seed);
         match &e.status {
@@ -192,12 +190,13 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
             }
             Status::Failed { .. } => report.failed += 1,
         }
-        if !planned.contains_key(id) {
-            report.corrupt.push((format!("ledger job {id}"), "not a job of this run's manifest".into()));
+        match plan.records(e) {
+            true => recorded += 1,
+            false => report.corrupt.push((format!("ledger job {id}"), "not a job of this run's manifest".into())),
         }
         progress(k + 1, total);
     }
-    report.pending = planned.keys().filter(|id| !latest.contains_key(id)).count();
+    report.pending = report.planned.saturating_sub(recorded);
     match std::fs::read_dir(&shards) {
         Ok(listing) => {
             for entry in listing {

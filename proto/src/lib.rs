@@ -7,6 +7,7 @@
 //! the run manifest (`manifest`, with the generator's and the simulation's settings it holds: `generator`, `sim`),
 //! and what a job is with the messages about it between the coordinator and its workers (`job`).
 
+pub mod flags;
 pub mod generator;
 pub mod job;
 pub mod labels;

@@ -21,7 +21,7 @@ use dynforge_proto::sim::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::lock::{LockError, RunLock};
-use crate::plan::{self, Partition};
+use crate::plan::{self, Partition, Plan};
 use dynforge_proto::manifest::{Manifest, ManifestError};
 use liveness::Start;
 use processes::Processes;
@@ -75,6 +75,11 @@ pub enum GenerateError {
     #[error("no worker could be started ({why}); {finished} of {total} jobs are recorded, the same command resumes")]
     NoWorkers { why: String, finished: u64, total: u64 },
     #[error(
+        "{dir}/{LEDGER} records {count} job(s) that {dir}/{MANIFEST} does not plan (the first: {first}): the ledger \
+         and the manifest are of different runs; restore the run's own manifest, or use a new directory"
+    )]
+    Foreign { dir: String, count: usize, first: String },
+    #[error(
         "{failed} job(s) failed (reasons in {dir}/{LEDGER} and the worker logs in {dir}/{LOGS}); rerun the same \
          command to retry them"
     )]
@@ -102,7 +107,7 @@ pub const GENERATING: &str = "generate";
 struct Run<'a> {
     cfg: &'a GenerateConfig,
     ledger: Ledger,
-    pending: VecDeque<Job>,
+    pending: Queue,
     /// Per worker slot: its job and when it was sent.
     running: Vec<Option<(Job, Instant)>>,
     /// Per worker slot: its start-up ([`liveness`]).
@@ -118,26 +123,64 @@ struct Run<'a> {
     started: Instant,
 }
 
+/// The jobs left to hand out: jobs to retry first, then the plan's jobs not finished in an earlier run, made as they
+/// are needed (a run of any size holds none of its jobs in memory).
+struct Queue {
+    retries: VecDeque<Job>,
+    planned: std::iter::Peekable<Box<dyn Iterator<Item = Job>>>,
+}
+
+impl Queue {
+    fn pop_front(&mut self) -> Option<Job> {
+        self.retries.pop_front().or_else(|| self.planned.next())
+    }
+
+    fn push_front(&mut self, job: Job) {
+        self.retries.push_front(job);
+    }
+
+    fn is_empty(&mut self) -> bool {
+        self.retries.is_empty() && self.planned.peek().is_none()
+    }
+}
+
+/// Worker processes per core a run starts at most: more only wait for a core, each holding its memory (~35 MB).
+pub const WORKERS_PER_CORE: usize = 4;
+
 /// Runs (or resumes) a generation. Returns the final progress.
 pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
     check_settings(cfg)?;
     // Nothing in the directory is touched before it is ours.
     let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT, GENERATING)?;
     let (ledger, finished) = open_run_dir(cfg, observer)?;
-    let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
+    let plan = Plan { seed: cfg.seed, robots: cfg.robots, trajectories: cfg.trajectories, partition: cfg.partition };
+    let mut progress = Progress { total: plan.len(), ..Progress::default() };
     for status in finished.values() {
         progress.record(status);
     }
     progress.resumed = progress.finished();
-    let pending: VecDeque<Job> =
-        all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
-    if pending.is_empty() {
+    let left = progress.total - progress.resumed;
+    if left == 0 {
         observer.update(&progress);
         return Ok(progress);
     }
-    let workers = cfg.workers.min(pending.len());
-    progress.slots.truncate(workers);
+    let done: std::collections::BTreeSet<u64> = finished.into_keys().collect();
+    let trajectories = cfg.trajectories;
+    let planned: Box<dyn Iterator<Item = Job>> =
+        Box::new(plan.jobs().filter(move |j| !done.contains(&plan::job_id(j, trajectories))));
+    let pending = Queue { retries: VecDeque::new(), planned: planned.peekable() };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let most = WORKERS_PER_CORE * cores;
+    let wanted = cfg.workers.min(usize::try_from(left).unwrap_or(usize::MAX));
+    if wanted > most {
+        observer.message(&format!(
+            "--workers {}: starting {most} ({WORKERS_PER_CORE} per core, {cores} here): more worker processes only \
+             wait for a core, each holding its memory",
+            cfg.workers
+        ));
+    }
+    let workers = wanted.min(most);
+    progress.slots = vec![None; workers];
 
     let id = RunId::for_dir(&cfg.dir)?;
     dynforge_ipc::cleanup_stale(&id)?;
@@ -228,6 +271,15 @@ fn open_run_dir(
         observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
     }
     let (ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
+    let plan = Plan { seed: cfg.seed, robots: cfg.robots, trajectories: cfg.trajectories, partition: cfg.partition };
+    let foreign: Vec<&Entry> = entries.iter().filter(|e| !plan.records(e)).collect();
+    if let Some(e) = foreign.first() {
+        return Err(GenerateError::Foreign {
+            dir: cfg.dir.display().to_string(),
+            count: foreign.len(),
+            first: format!("job {}, robot {} trajectory {}", e.job_id, e.robot, e.trajectory),
+        });
+    }
     let removed = remove_leftovers(&cfg.dir).map_err(dir_err)?;
     if removed > 0 {
         observer.message(&format!("removed {removed} partial file(s) left by an interrupted run"));

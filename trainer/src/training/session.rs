@@ -19,6 +19,7 @@ use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::{Standardizer, split_windows};
 use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::window::WindowSpec;
+use dynforge_proto::NUM_LABELS;
 use dynforge_recording::ReadError;
 use dynforge_recording::dataset::{ShardFollower, dataset_robot, generator, shard_dir};
 
@@ -337,6 +338,12 @@ impl Session<'_> {
         let source =
             PhysicsSource { generator: generator_cfg, seed: draw_seed(seed, Draw::Synthetic), examples: record };
         let mut examples = PhysicsExamples::new(&set, prior, split, source)?;
+        // An epoch's generated robots are drawn and held at once (twice, while they are gathered).
+        let per_robot = (examples.shape()[1] * 4 + NUM_LABELS * 8 + 8) as u128;
+        let generated = self.recipe.generated_per_epoch;
+        super::check_memory(2 * generated as u128 * per_robot, || {
+            format!("--generated {generated}: an epoch's robots")
+        })?;
         let checkpoint = self.physics_checkpoint(previous, &examples, &spec, split, record, observer)?;
         observer.message(&format!(
             "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
