@@ -268,6 +268,70 @@ fn a_runs_shared_memory_is_writable_by_its_owner_only() {
     assert!(open.is_empty(), "writable by others: {open:?}");
 }
 
+/// A copy of the shard `from` as a user's log at `to`: its robot description and joint states, each stamp moved by
+/// `shift(k, stamp_ns)`, no dataset metadata.
+fn log_from_shard(from: &Path, to: &Path, shift: impl Fn(usize, i64) -> i64) {
+    let bag = dynforge_shard::read(from).unwrap();
+    let states: Vec<_> = bag
+        .joint_states
+        .iter()
+        .enumerate()
+        .map(|(k, m)| {
+            let t = shift(k, m.stamp_ns());
+            dynforge_proto::shard::JointState {
+                sec: (t / 1_000_000_000) as i32,
+                nanosec: (t % 1_000_000_000) as u32,
+                ..m.clone()
+            }
+        })
+        .collect();
+    let urdf = bag.robot_description.unwrap();
+    let metadata = Default::default();
+    dynforge_shard::write(
+        to,
+        &dynforge_shard::ShardContent { urdf: &urdf, joint_states: &states, metadata: &metadata },
+    )
+    .unwrap();
+}
+
+/// Item 18: a log whose stamps jump (one moved by an hour, or a day) is refused at once by `estimate`, naming the
+/// gap, instead of being put on the 1 kHz grid whole (a day: an allocation that aborts; an hour: 6.5 GB and 23 s);
+/// `info` says where the gap is, and `identify` reads the stretches on both sides apart.
+#[test]
+fn a_log_with_a_gap_is_refused_at_once_by_estimate_and_shown_by_info() {
+    let root = tempfile::tempdir().unwrap();
+    let (data, run) = (root.path().join("data"), root.path().join("ckpt"));
+    generate(&data, 5, 2);
+    ok(&["train", arg(&data), "--out", arg(&run), "--epochs", "1", "--generated", "256"]);
+    let shard = &shards(&data)[0];
+    for (gap_s, name) in [(3600, "hour.mcap"), (86_400, "day.mcap")] {
+        let log = root.path().join(name);
+        log_from_shard(shard, &log, |k, t| if k >= 1500 { t + gap_s * 1_000_000_000 } else { t });
+        let start = Instant::now();
+        let out = root.path().join("out.urdf");
+        let o = bounded(
+            &["estimate", "--checkpoint", arg(&run), arg(&log), "--out", arg(&out)],
+            &[],
+            Duration::from_secs(60),
+        );
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{e}");
+        assert!(e.contains(name) && e.contains(&format!("jump by {gap_s}.001 s after t = 1.499 s")), "{e}");
+        assert!(start.elapsed() < Duration::from_secs(20), "{:?} to refuse", start.elapsed());
+        let said = ok(&["info", arg(&log)]);
+        assert!(said.contains(&format!("Gaps:        1 (the first {gap_s}.001 s long, after t = 1.499 s)")), "{said}");
+        assert!(!said.contains("NaN") && said.contains("1000.0 Hz (median period)"), "{said}");
+    }
+    for name in ["hour.mcap", "day.mcap"] {
+        let out = root.path().join(format!("{name}.urdf"));
+        let o = bounded(&["identify", arg(&root.path().join(name)), "--out", arg(&out)], &[], Duration::from_secs(60));
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+        let said = stdout(&o) + &stderr(&o);
+        assert!(said.contains("1 gap(s) in the stamps: identified as 2 separate stretches"), "{name}: {said}");
+        assert!(out.exists(), "{name}: no calibrated URDF");
+    }
+}
+
 /// Items 20 and 22: flags out of range are refused before anything runs, saying what the flag takes: no panic, no
 /// abort, no message about something else.
 #[test]
@@ -359,4 +423,22 @@ fn ledger_records_outside_the_plan_are_refused() {
     assert!(ok(&["status", arg(&dir)]).contains("4/4 jobs finished (done 4"));
     let o = dynforge(&["verify", arg(&dir)]);
     assert!(!o.status.success() && stdout(&o).contains("ledger job 99: not a job of this run's manifest"));
+}
+
+/// Item 22: `info` on a log of one message says it has no rate, not "NaN Hz".
+#[test]
+fn info_on_a_one_message_log_prints_no_nan() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 1, 1);
+    let bag = dynforge_shard::read(&shards(&dir)[0]).unwrap();
+    let one = root.path().join("one.mcap");
+    let content = dynforge_shard::ShardContent {
+        urdf: bag.robot_description.as_deref().unwrap(),
+        joint_states: &bag.joint_states[..1],
+        metadata: &Default::default(),
+    };
+    dynforge_shard::write(&one, &content).unwrap();
+    let said = ok(&["info", arg(&one)]);
+    assert!(!said.contains("NaN") && said.contains("1 message(s) at one stamp: no rate"), "{said}");
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::read::{ReadError, read_bag};
+use crate::read::{Gap, ReadError, first_gap, read_bag};
 
 /// A log's summary.
 #[derive(Debug, Clone)]
@@ -22,12 +22,23 @@ pub struct Info {
     pub robot: Option<Result<(String, usize), dynforge_robot::model::ModelProblem>>,
     /// Metadata records: name -> (key, value), in file order of keys.
     pub metadata: Vec<(String, Vec<(String, String)>)>,
+    /// The first jump of the stamps by more than a few sampling periods, and how many there are.
+    pub gaps: Option<(Gap, usize)>,
 }
 
 impl Info {
     /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
     pub fn of(path: &Path) -> Result<Info, ReadError> {
         let (files, bag) = read_bag(path)?;
+        let mut sorted: Vec<i64> = bag.joint_states.iter().map(|m| m.stamp_ns()).collect();
+        sorted.sort_unstable();
+        sorted.dedup();
+        let first = sorted.first().copied().unwrap_or(0);
+        let t: Vec<f64> = sorted.iter().map(|&s| (s - first) as f64 * 1e-9).collect();
+        let gaps = first_gap(&t).map(|g| {
+            let n = t.windows(2).filter(|w| w[1] - w[0] > crate::log::GAP_PERIODS * g.period).count();
+            (g, n)
+        });
         let bytes = files.iter().map(|f| std::fs::metadata(f).map_or(0, |m| m.len())).sum();
         let file = if files.len() == 1 { files[0].clone() } else { path.to_path_buf() };
         let stamps: Vec<f64> = bag.joint_states.iter().map(|m| m.stamp_ns() as f64 * 1e-9).collect();
@@ -45,6 +56,7 @@ impl Info {
             joints: bag.joint_states.first().map(|m| m.name.clone()).unwrap_or_default(),
             robot,
             metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
+            gaps,
         })
     }
 }
@@ -54,11 +66,33 @@ impl std::fmt::Display for Info {
         writeln!(f, "File:        {} ({:.1} MB)", self.file, self.bytes as f64 / 1e6)?;
         match self.span {
             Some((a, b)) => {
-                let rate = if b > a { (self.joint_states as f64 - 1.0) / (b - a) } else { f64::NAN };
                 writeln!(f, "Duration:    {:.3} s (stamps {a:.6} .. {b:.6} s)", b - a)?;
-                writeln!(f, "/joint_states: {} messages, {rate:.1} Hz mean", self.joint_states)?;
+                match self.gaps {
+                    // Messages over the whole span would count the gaps as time sampled.
+                    Some((g, _)) => writeln!(
+                        f,
+                        "/joint_states: {} messages, {:.1} Hz (median period)",
+                        self.joint_states,
+                        1.0 / g.period
+                    )?,
+                    None if b > a => writeln!(
+                        f,
+                        "/joint_states: {} messages, {:.1} Hz mean",
+                        self.joint_states,
+                        (self.joint_states as f64 - 1.0) / (b - a)
+                    )?,
+                    None => writeln!(f, "/joint_states: {} message(s) at one stamp: no rate", self.joint_states)?,
+                }
             }
             None => writeln!(f, "/joint_states: none")?,
+        }
+        if let Some((g, n)) = self.gaps {
+            writeln!(
+                f,
+                "Gaps:        {n} (the first {:.3} s long, after t = {:.3} s): `identify` reads the stretches apart; \
+                 `estimate` and `train` refuse the log",
+                g.length, g.after
+            )?;
         }
         writeln!(f, "Joints:      {}", if self.joints.is_empty() { "-".into() } else { self.joints.join(", ") })?;
         match &self.robot {

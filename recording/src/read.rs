@@ -6,6 +6,7 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_robot::{Model, urdf};
 
+use crate::log::GAP_PERIODS;
 use crate::resample::resample;
 use crate::samples::{JointTrajectory, SamplesError, from_bag};
 
@@ -119,7 +120,19 @@ fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Re
         (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
     };
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
-    let trajectory = resample(&from_bag(&bag, &names, path)?, GRID_DT);
+    let samples = from_bag(&bag, &names, path)?;
+    // Put on the grid whole, a stretch between two stamps a day apart would be 86 million interpolated samples.
+    if let Some(gap) = first_gap(&samples.t) {
+        return Err(content(format!(
+            "the stamps jump by {:.3} s after t = {:.3} s (more than {GAP_PERIODS} sampling periods of {:.3} ms): a \
+             gap in the recording, which this command reads as one continuous motion. Cut the log at its gaps, or \
+             calibrate with `dynforge identify`, which reads the stretches between gaps apart",
+            gap.length,
+            gap.after,
+            gap.period * 1e3
+        )));
+    }
+    let trajectory = resample(&samples, GRID_DT);
     let labels = match bag.metadata.get(META_LABELS) {
         Some(map) => {
             let mut y = [0.0; NUM_LABELS];
@@ -135,6 +148,24 @@ fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Re
     };
     let robot = bag.metadata.get(META_JOB).and_then(|m| m.get("robot")).and_then(|r| r.parse().ok());
     Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot })
+}
+
+/// A jump in a recording's stamps: more than [`GAP_PERIODS`] times its median sampling period.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gap {
+    /// The stamp it follows [s, from the first], its length [s], and the median period [s].
+    pub after: f64,
+    pub length: f64,
+    pub period: f64,
+}
+
+/// The first gap of the sample times `t` (increasing), if any.
+pub fn first_gap(t: &[f64]) -> Option<Gap> {
+    let steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    let mut sorted = steps.clone();
+    sorted.sort_by(f64::total_cmp);
+    let period = *sorted.get(sorted.len() / 2)?;
+    steps.iter().position(|&s| s > GAP_PERIODS * period).map(|i| Gap { after: t[i], length: steps[i], period })
 }
 
 impl Recording {
