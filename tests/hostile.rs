@@ -386,6 +386,46 @@ fn verify_and_status_count_a_huge_plan_without_listing_it() {
     assert!(stdout(&o).contains("1999999999996 pending"), "{}", stdout(&o));
 }
 
+/// Zeroes the data-section CRC of the MCAP `bytes` (MCAP allows 0: "not computed").
+fn clear_crc(bytes: &mut [u8]) {
+    let footer = bytes.len() - 8 - 29;
+    let summary = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap()) as usize;
+    let data_end = if summary == 0 { footer } else { summary } - 13;
+    assert_eq!(bytes[data_end], 0x0F, "the DataEnd record");
+    bytes[data_end + 9..data_end + 13].fill(0);
+}
+
+/// Item 21: a shard whose label was edited and whose data-section CRC was cleared (0 is allowed by MCAP) is not
+/// trusted: its run's ledger hash, or for a file outside a run the missing CRC, refuses it in `info`, `dataset
+/// stats` and `prepare`.
+#[test]
+fn a_shard_without_its_crc_and_with_an_edited_label_is_never_read_as_data() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 4, 2);
+    let path = shards(&dir)[2].clone();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.windows(7).position(|w| w == b"mass_l2").unwrap();
+    let digit = (at..bytes.len()).find(|&k| bytes[k].is_ascii_digit()).unwrap();
+    bytes[digit] = if bytes[digit] == b'9' { b'8' } else { b'9' };
+    clear_crc(&mut bytes);
+    std::fs::write(&path, &bytes).unwrap();
+    let name = path.file_name().unwrap().to_str().unwrap();
+    let o = dynforge(&["info", arg(&path)]);
+    assert!(!o.status.success() && stderr(&o).contains("the run's ledger records"), "{}", stdout(&o));
+    let o = dynforge(&["dataset", "stats", arg(&dir)]);
+    assert!(stderr(&o).contains(name) && stdout(&o).contains("7 trajectories"), "{}{}", stdout(&o), stderr(&o));
+    let o = dynforge(&["dataset", "prepare", arg(&dir)]);
+    assert!(!o.status.success() && stderr(&o).contains(name), "{}", stderr(&o));
+    // Outside its run nothing vouches for its labels.
+    let alone = root.path().join("alone.mcap");
+    std::fs::write(&alone, &bytes).unwrap();
+    let said = ok(&["info", arg(&alone)]);
+    assert!(said.contains("Checked:     nothing"), "{said}");
+    let o = dynforge(&["dataset", "stats", arg(root.path().join("alone.mcap").as_path())]);
+    assert!(!o.status.success() && stderr(&o).contains("no data-section CRC"), "{}", stderr(&o));
+}
+
 /// Item 21: what killed writers leave in `cache/` is removed by the next holder of the run's lock.
 #[test]
 fn a_killed_cache_writers_temporary_file_is_removed() {

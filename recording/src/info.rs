@@ -24,12 +24,35 @@ pub struct Info {
     pub metadata: Vec<(String, Vec<(String, String)>)>,
     /// The first jump of the stamps by more than a few sampling periods, and how many there are.
     pub gaps: Option<(Gap, usize)>,
+    /// What vouches for the file's content.
+    pub check: Check,
+}
+
+/// What vouches for a log's content: a shard's labels are outside the chunks the MCAP reader checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Check {
+    /// Its data-section CRC matched.
+    Crc,
+    /// It hashes to what its run directory's ledger records (checked also when it has a CRC).
+    Ledger,
+    /// Nothing: no CRC (MCAP allows that), and no ledger records it.
+    None,
 }
 
 impl Info {
     /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
     pub fn of(path: &Path) -> Result<Info, ReadError> {
         let (files, bag) = read_bag(path)?;
+        let check = match crate::dataset::recorded_hash(&files[0]) {
+            Some(recorded) if files.len() == 1 => {
+                let bytes = std::fs::read(&files[0])
+                    .map_err(|e| ReadError::Content { file: files[0].display().to_string(), problem: e.to_string() })?;
+                crate::dataset::check_recorded(&bytes, &files[0], recorded)?;
+                Check::Ledger
+            }
+            _ if bag.crc_checked => Check::Crc,
+            _ => Check::None,
+        };
         let mut sorted: Vec<i64> = bag.joint_states.iter().map(|m| m.stamp_ns()).collect();
         sorted.sort_unstable();
         sorted.dedup();
@@ -57,6 +80,7 @@ impl Info {
             robot,
             metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
             gaps,
+            check,
         })
     }
 }
@@ -94,6 +118,12 @@ impl std::fmt::Display for Info {
                 g.length, g.after
             )?;
         }
+        let check = match self.check {
+            Check::Crc => "data-section CRC matches",
+            Check::Ledger => "content hash matches its run's ledger",
+            Check::None => "nothing: no data-section CRC and no run ledger records it (labels are not trusted)",
+        };
+        writeln!(f, "Checked:     {check}")?;
         writeln!(f, "Joints:      {}", if self.joints.is_empty() { "-".into() } else { self.joints.join(", ") })?;
         match &self.robot {
             Some(Ok((name, dof))) => writeln!(f, "Robot:       {name} ({dof} moving joints, from /robot_description)")?,

@@ -65,7 +65,7 @@ pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
 }
 
 /// The bag of a log (a file, or every file of a rosbag2 directory joined: messages in recording order, the
-/// `/robot_description` of whichever file has one, metadata of all).
+/// `/robot_description` of whichever file has one, metadata of all; CRC-checked if every file was).
 pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
     let files = log_files(path)?;
     let mut bag = dynforge_shard::read(&files[0])?;
@@ -74,6 +74,7 @@ pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), Read
         bag.joint_states.extend(more.joint_states);
         bag.robot_description = more.robot_description.or(bag.robot_description);
         bag.metadata.extend(more.metadata);
+        bag.crc_checked &= more.crc_checked;
     }
     Ok((files, bag))
 }
@@ -134,6 +135,14 @@ fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Re
     }
     let trajectory = resample(&samples, GRID_DT);
     let labels = match bag.metadata.get(META_LABELS) {
+        // The labels are outside the chunks the reader checks: only the data-section CRC vouches for them.
+        Some(_) if !bag.crc_checked => {
+            return Err(content(
+                "it carries dataset labels but no data-section CRC (0), so nothing shows they are as written (every \
+                 shard dynforge writes has one): a shard rewritten by another tool, or edited"
+                    .into(),
+            ));
+        }
         Some(map) => {
             let mut y = [0.0; NUM_LABELS];
             for (v, l) in y.iter_mut().zip(LABELS.iter()) {
