@@ -386,6 +386,49 @@ fn verify_and_status_count_a_huge_plan_without_listing_it() {
     assert!(stdout(&o).contains("1999999999996 pending"), "{}", stdout(&o));
 }
 
+/// Item 21: `verify` while a generation holds the run counts a planned job's shard that is in place before its ledger
+/// line (a worker renames it, then the coordinator records it) as in flight, not as extra; a file no job of the plan
+/// writes is extra all the same, and without a live generation the unrecorded shard is extra.
+#[test]
+fn verify_during_a_live_generation_reports_no_extra_shards() {
+    use dynforge_proto::ledger::{self, Ledger};
+    use dynforge_proto::lock::RunLock;
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 2, 2);
+    // The last job's shard is in place, its line not yet written.
+    let path = dir.join("ledger.tsv");
+    let mut entries = ledger::read(&path).unwrap();
+    let last = entries.pop().unwrap();
+    std::fs::remove_file(&path).unwrap();
+    let (mut l, _) = Ledger::open(&path).unwrap();
+    entries.iter().for_each(|e| l.append(e).unwrap());
+    drop(l);
+    let unrecorded = last.shard_name(3, "native");
+    assert!(dir.join("shards").join(&unrecorded).exists());
+    let stranger = "r000009-t00-native.mcap";
+
+    let lock = RunLock::acquire(&dir, Duration::ZERO, "generate").unwrap();
+    let said = stdout(&dynforge(&["verify", arg(&dir)]));
+    assert!(said.contains("a generation is live") && said.contains("1 pending"), "{said}");
+    assert!(!said.contains("extra:"), "{said}");
+    std::fs::copy(dir.join("shards").join(&unrecorded), dir.join("shards").join(stranger)).unwrap();
+    let said = stdout(&dynforge(&["verify", arg(&dir)]));
+    assert!(said.contains(&format!("extra: {stranger}")) && !said.contains(&unrecorded), "{said}");
+    drop(lock);
+    std::fs::remove_file(dir.join("shards").join(stranger)).unwrap();
+
+    // Held by another command, no generation writes: the unrecorded shard is extra.
+    let lock = RunLock::acquire(&dir, Duration::ZERO, "dataset prepare").unwrap();
+    let o = dynforge(&["verify", arg(&dir)]);
+    let said = stdout(&o);
+    assert!(said.contains("in use by dataset prepare (pid "), "{said}");
+    assert!(!o.status.success() && said.contains(&format!("extra: {unrecorded}")), "{said}");
+    drop(lock);
+    let o = dynforge(&["verify", arg(&dir)]);
+    assert!(!o.status.success() && stdout(&o).contains(&format!("extra: {unrecorded}")), "{}", stdout(&o));
+}
+
 /// Zeroes the data-section CRC of the MCAP `bytes` (MCAP allows 0: "not computed").
 fn clear_crc(bytes: &mut [u8]) {
     let footer = bytes.len() - 8 - 29;
@@ -463,6 +506,50 @@ fn ledger_records_outside_the_plan_are_refused() {
     assert!(ok(&["status", arg(&dir)]).contains("4/4 jobs finished (done 4"));
     let o = dynforge(&["verify", arg(&dir)]);
     assert!(!o.status.success() && stdout(&o).contains("ledger job 99: not a job of this run's manifest"));
+}
+
+/// Item 21: `merge --out` inside one of its partitions is refused, and the partition is left as it was.
+#[test]
+fn a_merge_into_one_of_its_partitions_is_refused() {
+    let root = tempfile::tempdir().unwrap();
+    let parts: Vec<PathBuf> = (0..2).map(|i| root.path().join(format!("p{i}"))).collect();
+    for (i, p) in parts.iter().enumerate() {
+        let part = format!("{i}/2");
+        ok(&["generate", "--out", arg(p), "--robots", "2", "--trajectories", "2", "--seed", "3", "--partition", &part]);
+    }
+    for out in [parts[0].join("merged"), parts[0].join("shards").join("m"), parts[1].join("./cache/../x")] {
+        let o = dynforge(&["merge", "--out", arg(&out), arg(&parts[0]), arg(&parts[1])]);
+        assert!(!o.status.success() && stderr(&o).contains("is inside it"), "{}: {}", out.display(), stderr(&o));
+        assert!(!out.exists(), "{}", out.display());
+    }
+    for p in &parts {
+        ok(&["verify", arg(p)]);
+    }
+    let merged = root.path().join("merged");
+    ok(&["merge", "--out", arg(&merged), arg(&parts[0]), arg(&parts[1])]);
+}
+
+/// Item 21: `identify LOG --out LOG` and `estimate ... --out LOG`, however the path is spelt, refuse to write over
+/// the input log.
+#[test]
+fn identify_and_estimate_never_write_over_their_log() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("run");
+    generate(&dir, 1, 1);
+    let log = root.path().join("log.mcap");
+    std::fs::copy(&shards(&dir)[0], &log).unwrap();
+    let before = std::fs::read(&log).unwrap();
+    std::fs::create_dir(root.path().join("sub")).unwrap();
+    std::os::unix::fs::symlink(root.path(), root.path().join("link")).unwrap();
+    let spellings = [log.clone(), root.path().join("sub/../log.mcap"), root.path().join("link/log.mcap")];
+    for out in &spellings {
+        let o = dynforge(&["identify", arg(&log), "--out", arg(out)]);
+        assert!(!o.status.success() && stderr(&o).contains("would overwrite the input"), "{}", stderr(&o));
+        let ckpt = root.path().join("no-checkpoint");
+        let o = dynforge(&["estimate", "--checkpoint", arg(&ckpt), arg(&log), "--out", arg(out)]);
+        assert!(!o.status.success() && stderr(&o).contains("would overwrite the input"), "{}", stderr(&o));
+    }
+    assert_eq!(std::fs::read(&log).unwrap(), before, "the log was overwritten");
 }
 
 /// Item 22: `info` on a log of one message says it has no rate, not "NaN Hz".

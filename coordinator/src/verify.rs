@@ -8,9 +8,9 @@ use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::ledger::{self, Status};
+use crate::ledger::{self, Entry, Status};
 use crate::lock::Holder;
-use crate::plan::Plan;
+use crate::plan::{self, Plan};
 use dynforge_proto::manifest::Manifest;
 
 /// What `verify` found.
@@ -121,6 +121,15 @@ pub enum VerifyError {
     Lock(#[from] crate::lock::LockError),
 }
 
+/// The robot and trajectory of the shard named `name` of a run simulated by `engine`; `None` for a name no job of
+/// such a run writes.
+fn job_of_shard(name: &str, engine: &str) -> Option<(u64, u32)> {
+    use dynforge_proto::shard::{file_name, robot_of_file_name};
+    let robot = robot_of_file_name(name)?;
+    let trajectory = name.split_once("-t")?.1.split_once('-')?.0.parse().ok()?;
+    (file_name(robot, trajectory, engine) == name).then_some((robot, trajectory))
+}
+
 /// Checks one shard against its ledger entry; the reason if it fails.
 fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64) -> Result<(), String> {
     let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
@@ -197,20 +206,34 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
         progress(k + 1, total);
     }
     report.pending = report.planned.saturating_sub(recorded);
+    // While a generation is live, a shard its worker has renamed into place is recorded a moment later: a planned
+    // job's shard without a record (or with a failed one, being retried) is in flight, not extra.
+    let generating = report.generating();
+    let in_flight = |name: &str| {
+        generating
+            && job_of_shard(name, engine).is_some_and(|(robot, trajectory)| {
+                let e = Entry { job_id: 0, robot, trajectory, status: Status::Failed { message: String::new() } };
+                let id = plan::job_id(&e.job(manifest.seed), manifest.trajectories);
+                plan.records(&Entry { job_id: id, ..e })
+                    && latest.get(&id).is_none_or(|l| matches!(l.status, Status::Failed { .. }))
+            })
+    };
+    let mut extra = Vec::new();
     match std::fs::read_dir(&shards) {
         Ok(listing) => {
             for entry in listing {
                 let entry = entry.map_err(|source| VerifyError::Io { path: shards.display().to_string(), source })?;
                 let name = entry.file_name().to_string_lossy().to_string();
-                let in_flight = report.live.is_some() && is_temporary(&name);
-                if !expected_files.contains(&name) && !in_flight {
-                    report.extra.push(name);
+                let writing = generating && is_temporary(&name);
+                if !expected_files.contains(&name) && !writing && !in_flight(&name) {
+                    extra.push(name);
                 }
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(source) => return Err(VerifyError::Io { path: shards.display().to_string(), source }),
     }
+    report.extra = extra;
     report.extra.sort();
     Ok(report)
 }
@@ -248,4 +271,21 @@ pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
         marked += 1;
     }
     Ok(marked)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::job_of_shard;
+    use dynforge_proto::shard::file_name;
+
+    #[test]
+    fn a_shard_name_gives_its_job_only_in_its_canonical_spelling() {
+        assert_eq!(job_of_shard(&file_name(315, 6, "native"), "native"), Some((315, 6)));
+        assert_eq!(job_of_shard(&file_name(1_234_567, 15, "rapier"), "rapier"), Some((1_234_567, 15)));
+        assert_eq!(job_of_shard(&file_name(315, 6, "native"), "rapier"), None, "another engine's");
+        for other in ["r0315-t6-native.mcap", "r000315-t06-native.mcap.tmp", ".r000315-t06-native.mcap.9.tmp", "x.mcap"]
+        {
+            assert_eq!(job_of_shard(other, "native"), None, "{other}");
+        }
+    }
 }

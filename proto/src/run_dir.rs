@@ -61,6 +61,27 @@ pub fn write_pruned<'a>(dir: &Path, names: impl IntoIterator<Item = &'a String>)
     write_atomic(&dir.join(PRUNED), text.as_bytes())
 }
 
+/// `path` as the filesystem resolves it, also when its last components do not exist yet: the longest existing
+/// ancestor canonicalized (links followed, `.` and `..` gone), the rest appended. What tells whether two spellings
+/// (`./out`, `run/../run/out`, a link) are one place, or one inside the other.
+pub fn resolve(path: &Path) -> PathBuf {
+    let absolute = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let mut rest = Vec::new();
+    let mut base = absolute.as_path();
+    loop {
+        if let Ok(c) = base.canonicalize() {
+            return rest.iter().rev().fold(c, |p: PathBuf, name| p.join(name));
+        }
+        match (base.parent(), base.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                base = parent;
+            }
+            _ => return absolute,
+        }
+    }
+}
+
 /// Whether a file name is a writer's temporary file (never a finished file).
 pub fn is_temporary(name: &str) -> bool {
     name.starts_with('.') && name.ends_with(".tmp")
@@ -198,6 +219,16 @@ mod tests {
         assert_eq!(std::fs::read(&path).unwrap(), b"old");
         assert!(std::fs::read_dir(&dir).unwrap().all(|e| !is_temporary(&e.unwrap().file_name().to_string_lossy())));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn paths_resolve_to_one_spelling_also_where_they_do_not_exist_yet() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = dir.path().canonicalize().unwrap();
+        std::fs::create_dir(real.join("a")).unwrap();
+        std::os::unix::fs::symlink(real.join("a"), real.join("link")).unwrap();
+        assert_eq!(resolve(&real.join("link/new/x")), real.join("a/new/x"));
+        assert_eq!(resolve(&real.join("a/../a/./y")), real.join("a/y"));
     }
 
     #[test]

@@ -17,6 +17,7 @@ pub mod resample;
 pub mod samples;
 
 pub use read::{
-    GRID_DT, Gap, ReadError, Recording, first_gap, log_files, read, read_bag, read_shard_bytes, robot_document,
+    GRID_DT, Gap, ReadError, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,
+    robot_document,
 };
 pub use samples::JointTrajectory;

@@ -79,6 +79,26 @@ pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), Read
     Ok((files, bag))
 }
 
+/// An error unless writing `out` leaves every input in `inputs` (log files or rosbag2 directories) as it is: `out` is
+/// none of their files (however the paths are spelt: `./log.mcap`, a link), and not inside one's directory.
+pub fn check_not_an_input(out: &Path, inputs: &[PathBuf]) -> Result<(), ReadError> {
+    use dynforge_proto::run_dir::resolve;
+    let target = resolve(out);
+    for input in inputs {
+        let input = resolve(input);
+        if target == input || (input.is_dir() && target.starts_with(&input)) {
+            return Err(ReadError::Content {
+                file: out.display().to_string(),
+                problem: format!(
+                    "this output would overwrite the input {} (or a file of it): choose another --out",
+                    input.display()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// The URDF document of the robot of `log`: the file `urdf` when given, else the log's `/robot_description`; with the
 /// name to report it by. What `estimate` and `identify` write their results into.
 pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String), ReadError> {
