@@ -268,6 +268,57 @@ fn a_runs_shared_memory_is_writable_by_its_owner_only() {
     assert!(open.is_empty(), "writable by others: {open:?}");
 }
 
+/// Item 16: `train --resume` on another data directory refuses, naming both, and keeps the model it has.
+#[test]
+fn a_resume_on_other_data_is_refused_naming_both_directories() {
+    let root = tempfile::tempdir().unwrap();
+    let (a, b, run) = (root.path().join("a"), root.path().join("b"), root.path().join("ckpt"));
+    generate(&a, 5, 2);
+    generate(&b, 5, 2);
+    let train = |data: &Path, extra: &[&str]| {
+        let args = ["train", arg(data), "--out", arg(&run), "--generated", "256"];
+        dynforge(&[&args[..], extra].concat())
+    };
+    let o = train(&a, &["--epochs", "1"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let model = std::fs::read(run.join("model.safetensors")).unwrap();
+    let o = train(&b, &["--resume", "--epochs", "2"]);
+    let e = stderr(&o);
+    assert!(!o.status.success(), "resumed on other data: {e}");
+    let canonical = |p: &Path| p.canonicalize().unwrap().display().to_string();
+    assert!(e.contains(&canonical(&a)) && e.contains(&canonical(&b)), "{e}");
+    assert_eq!(std::fs::read(run.join("model.safetensors")).unwrap(), model, "the model was replaced");
+    // Its own data resume it.
+    let o = train(&a, &["--resume", "--epochs", "2"]);
+    assert!(o.status.success() && stderr(&o).contains("resuming"), "{}", stderr(&o));
+}
+
+/// Item 17: a training killed (kill -9) before its first save leaves a description without a resume state; `train
+/// --resume` trains it again from its start instead of refusing both ways.
+#[test]
+fn a_training_killed_before_its_first_save_resumes() {
+    let root = tempfile::tempdir().unwrap();
+    let (data, run) = (root.path().join("data"), root.path().join("ckpt"));
+    generate(&data, 5, 2);
+    // Many generated robots: epoch 0 takes seconds, and its description is written before it.
+    let args = ["train", arg(&data), "--out", arg(&run), "--epochs", "1", "--generated", "400000"];
+    let mut child = Command::new(EXE).args(args).stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let start = Instant::now();
+    while !run.join("checkpoint.json").exists() {
+        assert!(child.try_wait().unwrap().is_none() && start.elapsed() < Duration::from_secs(120), "no description");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!run.join("train").join("state.json").exists(), "killed too late: a state was saved");
+    let o = dynforge(&["train", arg(&data), "--out", arg(&run), "--epochs", "1", "--generated", "256"]);
+    assert!(!o.status.success() && stderr(&o).contains("--resume"), "{}", stderr(&o));
+    let o = dynforge(&["train", arg(&data), "--out", arg(&run), "--epochs", "1", "--generated", "256", "--resume"]);
+    let e = stderr(&o);
+    assert!(o.status.success() && e.contains("training it again from its start"), "{e}");
+    assert!(run.join("model.safetensors").exists() && run.join("train").join("state.json").exists());
+}
+
 /// A copy of the shard `from` as a user's log at `to`: its robot description and joint states, each stamp moved by
 /// `shift(k, stamp_ns)`, no dataset metadata.
 fn log_from_shard(from: &Path, to: &Path, shift: impl Fn(usize, i64) -> i64) {

@@ -115,17 +115,7 @@ impl Session<'_> {
         if r.window.len == 0 || r.window.stride == 0 || r.window.ssr == 0 {
             return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
         }
-        let resume = self.resume && resumable(self.out);
-        if self.resume && !resume {
-            observer.message(&format!("{} holds no run to resume; starting a new one", self.out.display()));
-        }
-        if !resume && Checkpoint::read(self.out).is_ok() {
-            return Err(SessionError::Setup(format!(
-                "{} already holds a checkpoint: pass --resume to continue it, or choose another --out",
-                self.out.display()
-            )));
-        }
-        let previous = if resume { Some(Checkpoint::read(self.out)?) } else { None };
+        let (previous, resume) = self.previous(observer)?;
         match previous.as_ref().map_or(r.model.kind, |c| match c.model {
             NetworkConfig::Transformer(_) => ModelKind::Transformer,
             NetworkConfig::Physics(_) => ModelKind::Physics,
@@ -133,6 +123,47 @@ impl Session<'_> {
             ModelKind::Transformer => self.transformer(previous, resume, observer),
             ModelKind::Physics => self.physics(previous, resume, observer),
         }
+    }
+
+    /// The run in `out` this session continues, if any, and whether it saved a state to resume from. Without --resume
+    /// a run there is refused; with it, a run on other data is (its model would be replaced by one fitted to those),
+    /// and one stopped before its first save (kill -9 or a full disk in epoch 0: a description and no state) is
+    /// trained again from its start, with its settings.
+    fn previous(&self, observer: &mut dyn SessionObserver) -> Result<(Option<Checkpoint>, bool), SessionError> {
+        let out = self.out.display();
+        let described = match Checkpoint::read(self.out) {
+            Ok(c) => Some(c),
+            // A resume state without its description: not to be overwritten by a new run.
+            Err(e) if resumable(self.out) => return Err(e.into()),
+            Err(_) => None,
+        };
+        let Some(c) = described else {
+            if self.resume {
+                observer.message(&format!("{out} holds no run to resume; starting a new one"));
+            }
+            return Ok((None, false));
+        };
+        if !self.resume {
+            return Err(SessionError::Setup(format!(
+                "{out} already holds a checkpoint: pass --resume to continue it, or choose another --out"
+            )));
+        }
+        let data = std::fs::canonicalize(self.data).unwrap_or(self.data.to_path_buf()).display().to_string();
+        if !c.dataset.is_empty() && c.dataset != data {
+            return Err(SessionError::Setup(format!(
+                "{out} was trained on {}, not on {data}: resume it with its own data, or train on {data} into another \
+                 --out",
+                c.dataset
+            )));
+        }
+        if !resumable(self.out) {
+            observer.message(&format!(
+                "{out} stopped before its first save (no resume state): training it again from its start, with its \
+                 settings"
+            ));
+            return Ok((Some(c), false));
+        }
+        Ok((Some(c), true))
     }
 
     fn training_run(&self, resume: bool) -> Run<'_> {
