@@ -42,7 +42,7 @@ fn inspect_prints_the_model_and_its_labels() {
 fn bad_inputs_fail_with_a_message_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("bad.urdf");
-    std::fs::write(&bad, "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='prismatic'><parent link='a'/><child link='b'/></joint></robot>").unwrap();
+    std::fs::write(&bad, "<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='floating'><parent link='a'/><child link='b'/></joint></robot>").unwrap();
     let out = dynforge(&["robot", "--inspect", bad.to_str().unwrap()]);
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
