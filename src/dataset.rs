@@ -85,7 +85,7 @@ fn prepare_cache(args: PrepareArgs) -> Result<()> {
         let pruned = prune(&args.dir, args.model, &spec, progress)?;
         format!("{}; {} shards pruned", pruned.cache, pruned.shards)
     } else {
-        prepare(&args.dir, args.model, &spec, progress)?
+        prepare(&args.dir, args.model, &spec, progress)?.what
     };
     drop(bars);
     println!("{}: {held}", args.dir.display());

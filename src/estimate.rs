@@ -33,6 +33,8 @@ pub struct EstimateArgs {
 pub fn run(args: EstimateArgs) -> Result<()> {
     let (document, source) = robot_document(args.urdf.as_deref(), &args.log)?;
     let out = args.out.clone().unwrap_or_else(|| args.log.with_extension("estimated.urdf"));
+    let inputs: Vec<PathBuf> = std::iter::once(&args.log).chain(&args.urdf).cloned().collect();
+    dynforge_recording::check_not_an_input(&out, &inputs)?;
     let report = estimate_to_urdf(&args.checkpoint, &args.log, (&document, &source), &out, !args.no_refine)?;
     if let Some(w) = &report.warning {
         eprintln!("warning: {w}");

@@ -8,6 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig, Observer, Progress};
 use dynforge_coordinator::verify;
+use dynforge_proto::flags::{MAX_ROBOTS, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_robot::generator::GeneratorConfig;
@@ -19,13 +20,13 @@ pub struct GenerateArgs {
     #[arg(long, short)]
     out: PathBuf,
     /// Robots in the dataset (the paper: 8192).
-    #[arg(long, default_value_t = 8192)]
+    #[arg(long, default_value_t = 8192, value_parser = whole::<u64>(1, MAX_ROBOTS))]
     robots: u64,
     /// Trajectories per robot (the paper: 16).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = whole::<u32>(1, u32::MAX as u64))]
     trajectories: u32,
-    /// Worker processes (default: one per CPU core).
-    #[arg(long)]
+    /// Worker processes (default: one per CPU core; at most 4 per core are started).
+    #[arg(long, value_parser = whole::<usize>(1, 1 << 16))]
     workers: Option<usize>,
     /// Dataset seed.
     #[arg(long, default_value_t = 0)]

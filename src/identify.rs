@@ -72,9 +72,8 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         bail!("--cutoff {fc} is not a positive frequency");
     }
     let out = args.out.clone().unwrap_or_else(|| args.logs[0].with_extension("calibrated.urdf"));
-    if args.logs.iter().chain(&args.holdout).any(|l| *l == out) {
-        bail!("--out {} is one of the logs: choose another file", out.display());
-    }
+    let inputs: Vec<PathBuf> = args.logs.iter().chain(&args.holdout).chain(&args.urdf).cloned().collect();
+    dynforge_recording::check_not_an_input(&out, &inputs)?;
     let given = match &args.urdf {
         Some(path) => Some((
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?,

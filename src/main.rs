@@ -13,7 +13,7 @@ mod simulate;
 mod sweep;
 mod train;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 // burn's attention allocates tensors above glibc's mmap threshold every step; mimalloc reuses them (measured ~45 %
 // faster training, ../docs/notes.md).
@@ -94,7 +94,10 @@ fn main() -> std::process::ExitCode {
     // quarter of `identify`'s time went to the kernel clearing pages).
     // SAFETY: setting an option of the allocator, which it reads when it next purges.
     unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
-    let cli = Cli::parse();
+    let cli = match Cli::from_arg_matches(&negative_values(Cli::command()).get_matches()) {
+        Ok(cli) => cli,
+        Err(e) => e.exit(),
+    };
     let result = match cli.command {
         Command::Robot(args) => robot::run(args),
         Command::Simulate(args) => simulate::run(args),
@@ -120,6 +123,16 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// `cmd` with every option that takes a value taking `-1` as one: then the option's parser says what is wrong with
+/// it (`--robots -1`: "expected a whole number from 1 to ..."), where clap would take it for an unknown flag.
+fn negative_values(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|a| match a.get_action().takes_values() {
+        true => a.allow_negative_numbers(true),
+        false => a,
+    })
+    .mut_subcommands(negative_values)
 }
 
 /// The error and its causes, each said once: library errors often quote their cause (`FILE: Is a directory (os error

@@ -209,7 +209,7 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
 
     let dir = tempfile::tempdir().unwrap();
     let o = dynforge(&generate_args(dir.path(), "0", "4", &[]));
-    assert!(!o.status.success() && stderr(&o).contains("--robots 0"), "{}", stderr(&o));
+    assert!(!o.status.success() && stderr(&o).contains("invalid value '0' for '--robots <ROBOTS>'"), "{}", stderr(&o));
     let o = dynforge(&generate_args(dir.path(), "2", "4", &["--partition", "3/2"]));
     assert!(!o.status.success() && stderr(&o).contains("partition '3/2'"), "{}", stderr(&o));
     // A robot's tour has 16 waypoints, so 16 trajectories; a timeout must be a finite number of seconds.

@@ -7,11 +7,12 @@
 // Index loops over worker slots mirror the per-slot state vectors they update together.
 #![allow(clippy::needless_range_loop)]
 
-pub mod ledger;
-pub mod lock;
 pub mod merge;
 pub mod plan;
 pub mod prune;
 pub mod run;
 pub mod status;
 pub mod verify;
+
+// The run directory's ledger and lock are file contracts every crate reading a run directory shares.
+pub use dynforge_proto::{ledger, lock};

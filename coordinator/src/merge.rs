@@ -82,6 +82,21 @@ impl std::fmt::Display for Merged {
 /// Merges the partition directories `parts` into the new directory `out`. `progress(k, n)` follows the verification
 /// of each partition's shards.
 pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Merged, MergeError> {
+    // Written inside a partition, the output would be part of it (an extra file of its shards, a directory in its
+    // caches): the partition would no longer verify, or would be merged into itself.
+    let target = run_dir::resolve(out);
+    for dir in parts {
+        let part = run_dir::resolve(dir);
+        if target.starts_with(&part) || part.starts_with(&target) {
+            return Err(MergeError::Partition {
+                dir: dir.display().to_string(),
+                problem: format!(
+                    "--out {} is inside it (or it inside --out): merge into a directory of its own",
+                    out.display()
+                ),
+            });
+        }
+    }
     let (first, by_index) = one_run(parts)?;
     for dir in parts {
         check_complete(dir, &mut progress)?;
@@ -90,7 +105,7 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     let caches = partitions::plan(parts)?;
 
     // The output: ours before anything is written.
-    let _lock = RunLock::acquire(out, std::time::Duration::ZERO)?;
+    let _lock = RunLock::acquire(out, std::time::Duration::ZERO, "merge")?;
     let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
     if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
         return Err(MergeError::OutputNotEmpty(out.display().to_string()));

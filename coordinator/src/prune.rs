@@ -5,12 +5,12 @@
 use std::path::Path;
 use std::time::Duration;
 
-use dynforge_dataset::prepare::{ModelKind, PrepareError, prepare};
+use dynforge_dataset::prepare::{ModelKind, PrepareError, prepare_locked};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::manifest::Manifest;
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
-use crate::ledger::{self, Status};
+use crate::ledger;
 use crate::lock::RunLock;
 use crate::verify::{VerifyError, verify};
 
@@ -38,9 +38,14 @@ pub struct Pruned {
     pub shards: usize,
 }
 
-/// Prunes the run directory `dir`: takes its lock (no generate may change it meanwhile), checks that it verifies
-/// complete, builds the cache of the estimator `kind` with window geometry `spec` that will hold the shards' data
-/// (`dynforge_dataset::prepare`), then records every present shard in the pruned list and deletes it.
+/// The lock's description of a prune, for anyone refused meanwhile.
+pub const PRUNING: &str = "dataset prepare --prune";
+
+/// Prunes the run directory `dir`: takes its lock (no generate, prepare or other prune may change it meanwhile),
+/// checks that it verifies complete (every shard hashes to its ledger record), builds the cache of the estimator
+/// `kind` with window geometry `spec` that will hold the shards' data (`dynforge_dataset::prepare`), then records
+/// every present shard in the pruned list and deletes it: each only if the cache lists it with the same content
+/// hash, so what is deleted is what the cache holds.
 /// `progress(stage, done, total)` follows the verification and the caching; `false` stops (before any shard is
 /// deleted).
 ///
@@ -52,7 +57,7 @@ pub fn prune(
     spec: &WindowSpec,
     mut progress: impl FnMut(&str, usize, usize) -> bool,
 ) -> Result<Pruned, PruneError> {
-    let _lock = RunLock::acquire(dir, Duration::ZERO)?;
+    let lock = RunLock::acquire(dir, Duration::ZERO, PRUNING)?;
     let not_ready = |problem: String| PruneError::NotReady { dir: dir.display().to_string(), problem };
     let report = verify(dir, |k, n| {
         progress("verify", k, n);
@@ -68,7 +73,7 @@ pub fn prune(
             report.pending, report.failed
         )));
     }
-    let cache = prepare(dir, kind, spec, &mut progress)
+    let cache = prepare_locked(dir, kind, spec, &lock, &mut progress)
         .map_err(|source| PruneError::Cache { dir: dir.display().to_string(), source })?;
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let engine = manifest.sim.engine.name();
@@ -77,12 +82,23 @@ pub fn prune(
     let io = |p: &Path, source| VerifyError::Io { path: p.display().to_string(), source };
     let list = dir.join(run_dir::PRUNED);
     let mut pruned = run_dir::read_pruned(dir).map_err(|e| io(&list, e))?;
-    let present: Vec<String> = ledger::latest(&entries)
-        .values()
-        .filter(|e| matches!(e.status, Status::Done { .. }))
-        .map(|e| e.shard_name(manifest.seed, engine))
-        .filter(|name| shards.join(name).exists())
+    let present: Vec<(String, u64)> = ledger::done_shards(&entries, manifest.seed, engine)
+        .into_iter()
+        .filter(|(name, _)| shards.join(name).exists())
         .collect();
+    let unheld: Vec<&str> = present
+        .iter()
+        .filter(|(name, hash)| cache.held.as_ref().and_then(|h| h.get(name)) != Some(hash))
+        .map(|(name, _)| name.as_str())
+        .collect();
+    if let Some(first) = unheld.first() {
+        return Err(not_ready(format!(
+            "the cache ({cache}) does not hold {} present shard(s) as the ledger records them ({first} ...): no shard \
+             was deleted",
+            unheld.len()
+        )));
+    }
+    let present: Vec<String> = present.into_iter().map(|(name, _)| name).collect();
     pruned.extend(present.iter().cloned());
     run_dir::write_pruned(dir, &pruned).map_err(|e| io(&list, e))?;
     for name in &present {
@@ -90,5 +106,5 @@ pub fn prune(
         std::fs::remove_file(&path).map_err(|e| io(&path, e))?;
     }
     std::fs::File::open(&shards).and_then(|d| d.sync_all()).map_err(|e| io(&shards, e))?;
-    Ok(Pruned { cache, shards: present.len() })
+    Ok(Pruned { cache: cache.what, shards: present.len() })
 }

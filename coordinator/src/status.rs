@@ -8,7 +8,7 @@ use dynforge_ipc::{RunId, StatusMsg, StatusReader};
 use dynforge_proto::run_dir::LEDGER;
 
 use crate::ledger;
-use crate::plan;
+use crate::plan::Plan;
 use crate::run::Progress;
 use dynforge_proto::manifest::Manifest;
 
@@ -30,7 +30,7 @@ pub enum RunStatus {
     Live(StatusMsg),
     /// None publishes here: the ledger's counts for the manifest's jobs. `holder` is who holds the directory's lock
     /// if someone does: a coordinator on another host sharing the directory (its status is in that host's memory).
-    Stopped { progress: Progress, pending: u64, holder: Option<String> },
+    Stopped { progress: Progress, pending: u64, holder: Option<crate::lock::Holder> },
 }
 
 /// The standing of the run in `dir`.
@@ -42,8 +42,11 @@ pub fn status(dir: &Path) -> Result<RunStatus, StatusError> {
         return Ok(RunStatus::Live(s));
     }
     let manifest = Manifest::load(dir)?.ok_or_else(|| StatusError::NoManifest(dir.display().to_string()))?;
-    let entries = ledger::read(&dir.join(LEDGER))?;
-    let total = plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition).count() as u64;
+    let plan = Plan::of(&manifest);
+    // Records of jobs the manifest does not plan are not its progress (`verify` names them).
+    let entries: Vec<ledger::Entry> =
+        ledger::read(&dir.join(LEDGER))?.into_iter().filter(|e| plan.records(e)).collect();
+    let total = plan.len();
     let progress = Progress::from_ledger(total, &entries);
     let pending = total.saturating_sub(progress.finished());
     Ok(RunStatus::Stopped { progress, pending, holder: crate::lock::holder(dir) })
@@ -60,7 +63,8 @@ impl RunStatus {
             }),
             RunStatus::Stopped { progress: p, pending, holder } => serde_json::json!({
                 "live": holder.is_some(), "total": p.total, "done": p.done, "discarded": p.discarded,
-                "failed": p.failed, "reasons": p.reasons, "pending": pending, "holder": holder,
+                "failed": p.failed, "reasons": p.reasons, "pending": pending,
+                "holder": holder.as_ref().map(|h| h.to_string()),
             }),
         }
     }

@@ -8,8 +8,9 @@ use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::ledger::{self, Status};
-use crate::plan;
+use crate::ledger::{self, Entry, Status};
+use crate::lock::Holder;
+use crate::plan::{self, Plan};
 use dynforge_proto::manifest::Manifest;
 
 /// What `verify` found.
@@ -32,11 +33,17 @@ pub struct Report {
     pub corrupt: Vec<(String, String)>,
     /// Discards by reason code.
     pub reasons: BTreeMap<String, usize>,
-    /// Who holds the directory's lock, when a generation is live there (its files in flight are not counted).
-    pub live: Option<String>,
+    /// Who holds the directory's lock, when a generation (or a prune, ...) is live there (a generation's files in
+    /// flight are not counted).
+    pub live: Option<Holder>,
 }
 
 impl Report {
+    /// Whether a generation holds the directory: its workers may have shards in place not yet recorded.
+    pub fn generating(&self) -> bool {
+        self.live.as_ref().is_some_and(|h| h.what == crate::run::GENERATING)
+    }
+
     pub fn is_ok(&self) -> bool {
         self.missing.is_empty() && self.extra.is_empty() && self.corrupt.is_empty()
     }
@@ -72,8 +79,12 @@ pub enum Unverified {
 impl std::fmt::Display for Report {
     /// The counts, then one line per missing, extra and corrupt shard.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        if let Some(holder) = &self.live {
-            writeln!(f, "a generation is live ({holder}): its files in flight are not counted")?;
+        match &self.live {
+            Some(h) if self.generating() => {
+                writeln!(f, "a generation is live ({}): its files in flight are not counted", h.process)?
+            }
+            Some(h) => writeln!(f, "in use by {h}")?,
+            None => {}
         }
         let reasons: Vec<String> = self.reasons.iter().map(|(r, n)| format!("{r} {n}")).collect();
         let reasons = if reasons.is_empty() { String::new() } else { format!(" ({})", reasons.join(", ")) };
@@ -108,6 +119,15 @@ pub enum VerifyError {
     Io { path: String, source: std::io::Error },
     #[error(transparent)]
     Lock(#[from] crate::lock::LockError),
+}
+
+/// The robot and trajectory of the shard named `name` of a run simulated by `engine`; `None` for a name no job of
+/// such a run writes.
+fn job_of_shard(name: &str, engine: &str) -> Option<(u64, u32)> {
+    use dynforge_proto::shard::{file_name, robot_of_file_name};
+    let robot = robot_of_file_name(name)?;
+    let trajectory = name.split_once("-t")?.1.split_once('-')?.0.parse().ok()?;
+    (file_name(robot, trajectory, engine) == name).then_some((robot, trajectory))
 }
 
 /// Checks one shard against its ledger entry; the reason if it fails.
@@ -149,14 +169,12 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
         path: dir.join(dynforge_proto::run_dir::PRUNED).display().to_string(),
         source,
     })?;
-    let planned: BTreeMap<u64, Job> =
-        plan::jobs(manifest.seed, manifest.robots, manifest.trajectories, manifest.partition)
-            .map(|j| (plan::job_id(&j, manifest.trajectories), j))
-            .collect();
-    report.planned = planned.len();
+    let plan = Plan::of(&manifest);
+    report.planned = plan.len() as usize;
     let latest = ledger::latest(&entries);
     let mut expected_files = BTreeSet::new();
     let total = latest.len();
+    let mut recorded = 0;
     for (k, (id, e)) in latest.iter().enumerate() {
         let job = e.job(manifest.seed);
         match &e.status {
@@ -181,26 +199,41 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
             }
             Status::Failed { .. } => report.failed += 1,
         }
-        if !planned.contains_key(id) {
-            report.corrupt.push((format!("ledger job {id}"), "not a job of this run's manifest".into()));
+        match plan.records(e) {
+            true => recorded += 1,
+            false => report.corrupt.push((format!("ledger job {id}"), "not a job of this run's manifest".into())),
         }
         progress(k + 1, total);
     }
-    report.pending = planned.keys().filter(|id| !latest.contains_key(id)).count();
+    report.pending = report.planned.saturating_sub(recorded);
+    // While a generation is live, a shard its worker has renamed into place is recorded a moment later: a planned
+    // job's shard without a record (or with a failed one, being retried) is in flight, not extra.
+    let generating = report.generating();
+    let in_flight = |name: &str| {
+        generating
+            && job_of_shard(name, engine).is_some_and(|(robot, trajectory)| {
+                let e = Entry { job_id: 0, robot, trajectory, status: Status::Failed { message: String::new() } };
+                let id = plan::job_id(&e.job(manifest.seed), manifest.trajectories);
+                plan.records(&Entry { job_id: id, ..e })
+                    && latest.get(&id).is_none_or(|l| matches!(l.status, Status::Failed { .. }))
+            })
+    };
+    let mut extra = Vec::new();
     match std::fs::read_dir(&shards) {
         Ok(listing) => {
             for entry in listing {
                 let entry = entry.map_err(|source| VerifyError::Io { path: shards.display().to_string(), source })?;
                 let name = entry.file_name().to_string_lossy().to_string();
-                let in_flight = report.live.is_some() && is_temporary(&name);
-                if !expected_files.contains(&name) && !in_flight {
-                    report.extra.push(name);
+                let writing = generating && is_temporary(&name);
+                if !expected_files.contains(&name) && !writing && !in_flight(&name) {
+                    extra.push(name);
                 }
             }
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
         Err(source) => return Err(VerifyError::Io { path: shards.display().to_string(), source }),
     }
+    report.extra = extra;
     report.extra.sort();
     Ok(report)
 }
@@ -213,7 +246,7 @@ pub const QUARANTINE: &str = "quarantine";
 /// `DIR/quarantine/`, and each of those jobs gets a `failed` ledger entry naming the reason (a resume retries failed
 /// jobs). Takes the directory's lock, so it refuses while a generation runs. Returns the jobs marked.
 pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
-    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO)?;
+    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO, "verify --repair")?;
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let (mut ledger, entries) = ledger::Ledger::open(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();
@@ -238,4 +271,21 @@ pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
         marked += 1;
     }
     Ok(marked)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::job_of_shard;
+    use dynforge_proto::shard::file_name;
+
+    #[test]
+    fn a_shard_name_gives_its_job_only_in_its_canonical_spelling() {
+        assert_eq!(job_of_shard(&file_name(315, 6, "native"), "native"), Some((315, 6)));
+        assert_eq!(job_of_shard(&file_name(1_234_567, 15, "rapier"), "rapier"), Some((1_234_567, 15)));
+        assert_eq!(job_of_shard(&file_name(315, 6, "native"), "rapier"), None, "another engine's");
+        for other in ["r0315-t6-native.mcap", "r000315-t06-native.mcap.tmp", ".r000315-t06-native.mcap.9.tmp", "x.mcap"]
+        {
+            assert_eq!(job_of_shard(other, "native"), None, "{other}");
+        }
+    }
 }

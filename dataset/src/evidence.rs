@@ -11,11 +11,11 @@ use std::path::Path;
 
 use dynforge_identify::{Evidence, IdentifyError, LatentSums, ParameterPrior, labels_of_parameters, latent_blocks};
 use dynforge_proto::NUM_LABELS;
+use dynforge_proto::content_hash;
 use dynforge_recording::dataset::generator;
 use dynforge_recording::{ReadError, Recording};
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::parameters::dynamic_parameters;
-use dynforge_shard::content_hash;
 
 use crate::window::WindowSpec;
 

@@ -1,6 +1,6 @@
 //! Train/validation split by robot, deterministic from a seed: no validation robot is ever seen in training.
 
-use dynforge_shard::content_hash;
+use dynforge_proto::content_hash;
 
 /// Which side of the split a sample belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

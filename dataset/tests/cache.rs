@@ -8,17 +8,38 @@ use dynforge_dataset::cache::windows::{CachedWindows, cache_path};
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::job::Job;
+use dynforge_proto::ledger::{self, Entry, Ledger, Status};
+use dynforge_proto::manifest::{Manifest, Partition};
 
-/// A run directory with `trajectories` shards of robot 1 of seed 5, a manifest and a ledger (the cache key reads
+/// A run directory with `trajectories` shards of robot 1 of seed 5, its manifest and its ledger (the cache key reads
 /// both as bytes); the default window geometry and the robot's features.
 fn run_dir(dir: &std::path::Path, trajectories: u32) -> (WindowSpec, JacobianFeatures) {
     let shards = dir.join("shards");
     std::fs::create_dir_all(&shards).unwrap();
-    let robots: Vec<_> =
-        (0..trajectories).map(|t| write_shard(&Job { seed: 5, robot: 1, trajectory: t }, &shards).1).collect();
-    std::fs::write(dir.join("manifest.toml"), "seed = 5\n").unwrap();
-    std::fs::write(dir.join("ledger.tsv"), "b\na\n").unwrap();
-    (WindowSpec::default(), JacobianFeatures::new(&robots[0].model))
+    let written: Vec<_> =
+        (0..trajectories).map(|t| write_shard(&Job { seed: 5, robot: 1, trajectory: t }, &shards)).collect();
+    let manifest = Manifest::new(5, 2, trajectories, Partition::WHOLE, Default::default(), Default::default());
+    manifest.create_or_check(dir).unwrap();
+    let entries: Vec<Entry> = written
+        .iter()
+        .enumerate()
+        .map(|(t, (path, _))| {
+            let shard_hash = dynforge_proto::content_hash(&std::fs::read(path).unwrap());
+            let status = Status::Done { samples: 1, shard_hash };
+            Entry { job_id: (trajectories + t as u32) as u64, robot: 1, trajectory: t as u32, status }
+        })
+        .collect();
+    write_ledger(dir, &entries);
+    (WindowSpec::default(), JacobianFeatures::new(&written[0].1.model))
+}
+
+fn write_ledger(dir: &std::path::Path, entries: &[Entry]) {
+    let path = dir.join("ledger.tsv");
+    let _ = std::fs::remove_file(&path);
+    let (mut ledger, _) = Ledger::open(&path).unwrap();
+    for e in entries {
+        ledger.append(e).unwrap();
+    }
 }
 
 #[test]
@@ -37,9 +58,13 @@ fn cache_hits_misses_and_rebuilds() {
     assert_eq!(CachedEq(&again), CachedEq(&built));
 
     // Ledger lines in another order are the same dataset; an extra record is not.
-    std::fs::write(dir.path().join("ledger.tsv"), "a\nb\n").unwrap();
+    let mut entries = ledger::read(&dir.path().join("ledger.tsv")).unwrap();
+    entries.reverse();
+    write_ledger(dir.path(), &entries);
     assert!(CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
-    std::fs::write(dir.path().join("ledger.tsv"), "a\nb\nc\n").unwrap();
+    let failed = Status::Failed { message: "full disk".into() };
+    entries.push(Entry { job_id: 0, robot: 0, trajectory: 0, status: failed });
+    write_ledger(dir.path(), &entries);
     assert!(!CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 
     // Another geometry misses.
@@ -118,4 +143,76 @@ fn an_interrupted_build_is_an_error_and_caches_nothing() {
         !CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit,
         "a partial cache was written"
     );
+}
+
+/// A cache is never partial (it may be all that is left of pruned shards): a shard that does not hash to its ledger
+/// record, a recorded shard that is missing, or a shard the ledger does not record leaves it unwritten; a written one
+/// lists every shard it holds with its hash.
+#[test]
+fn a_cache_holds_every_recorded_shard_as_recorded_or_is_not_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let (spec, features) = run_dir(dir.path(), 2);
+    let shards = dynforge_recording::dataset::list_shards(dir.path()).unwrap();
+    let good = std::fs::read(&shards[1]).unwrap();
+    let cache_files = || std::fs::read_dir(dir.path().join("cache")).map_or(0, |l| l.count());
+
+    // Changed after it was written: a byte of its labels, as a tool that does not keep the CRC would leave it.
+    let mut changed = good.clone();
+    let at = changed.windows(7).position(|w| w == b"mass_l2").unwrap();
+    let digit = (at..changed.len()).find(|&k| changed[k].is_ascii_digit()).unwrap();
+    changed[digit] = if changed[digit] == b'9' { b'8' } else { b'9' };
+    std::fs::write(&shards[1], &changed).unwrap();
+    let l = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| true).unwrap();
+    assert_eq!(l.skipped.len(), 1, "{:?}", l.skipped);
+    assert!(l.skipped[0].to_string().contains("the run's ledger records"), "{}", l.skipped[0]);
+    assert!(l.unwritten.as_deref().is_some_and(|w| w.contains("1 shard(s) skipped")), "{:?}", l.unwritten);
+    assert_eq!(cache_files(), 0, "a cache without the changed shard was written");
+
+    // Missing, and an extra file the ledger does not record.
+    std::fs::remove_file(&shards[1]).unwrap();
+    std::fs::write(shards[0].with_file_name("r000009-t00-native.mcap"), &good).unwrap();
+    let l = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| true).unwrap();
+    let said: Vec<String> = l.skipped.iter().map(|s| s.to_string()).collect();
+    assert!(said.iter().any(|s| s.contains("r000009") && s.contains("not recorded done")), "{said:?}");
+    assert!(said.iter().any(|s| s.contains("r000001-t01") && s.contains("missing")), "{said:?}");
+    assert_eq!(cache_files(), 0);
+
+    // Restored: the cache is written, and lists both shards with their ledger hashes.
+    std::fs::remove_file(shards[0].with_file_name("r000009-t00-native.mcap")).unwrap();
+    std::fs::write(&shards[1], &good).unwrap();
+    let l = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| true).unwrap();
+    assert!(l.skipped.is_empty() && l.unwritten.is_none() && !l.hit, "{:?}", l.unwritten);
+    let recorded = dynforge_recording::dataset::recorded_shards(dir.path()).unwrap().unwrap();
+    assert_eq!(l.held.as_ref(), Some(&recorded));
+    let again = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| panic!("a hit")).unwrap();
+    assert!(again.hit && again.held == Some(recorded));
+}
+
+/// A cache file from before caches listed their shards (one could be partial: issue 24, item 14) is not trusted where
+/// the shards are still there: it is rebuilt, with its list. Only where shards were pruned, and it is all that is
+/// left, is it read, without a list (on which `prepare --prune` deletes no shard).
+#[test]
+fn a_cache_without_its_list_of_shards_is_rebuilt_where_the_shards_remain() {
+    let dir = tempfile::tempdir().unwrap();
+    let (spec, features) = run_dir(dir.path(), 2);
+    let built = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| true).unwrap();
+    assert!(built.held.as_ref().is_some_and(|h| h.len() == 2), "{:?}", built.held);
+    let path = cache_path(dir.path(), &spec, &features).unwrap();
+    let listed = std::fs::read(&path).unwrap();
+    // The file: its magic, the list's length, the list, then the kind's own encoding, which older files held alone.
+    assert_eq!(&listed[..8], b"DFCACHE2");
+    let unlisted = &listed[16 + u64::from_le_bytes(listed[8..16].try_into().unwrap()) as usize..];
+    std::fs::write(&path, unlisted).unwrap();
+    let again = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| true).unwrap();
+    assert!(!again.hit && again.held == built.held, "an unlisted cache was trusted");
+    assert_eq!(std::fs::read(&path).unwrap(), listed, "rebuilt, with its list");
+
+    std::fs::write(&path, unlisted).unwrap();
+    let shards = dynforge_recording::dataset::list_shards(dir.path()).unwrap();
+    let name = shards[0].file_name().unwrap().to_string_lossy().into_owned();
+    dynforge_proto::run_dir::write_pruned(dir.path(), [&name]).unwrap();
+    std::fs::remove_file(&shards[0]).unwrap();
+    let pruned = CachedWindows::load(dir.path(), &spec, &features, None, |_, _| panic!("a hit")).unwrap();
+    assert!(pruned.hit && pruned.held.is_none());
+    assert_eq!(CachedEq(&pruned.cache), CachedEq(&built.cache));
 }

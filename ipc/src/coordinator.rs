@@ -82,6 +82,7 @@ impl Coordinator {
             .config(&cfg)
             .create::<Svc>()
             .ctx(|| format!("creating the coordinator node of run {run}"))?;
+        run::restrict_to_owner(run)?;
         // Two coordinators started at the same moment both saw none: both give up.
         let mut others = 0;
         run::list_nodes(&cfg, |state| {

@@ -121,11 +121,48 @@ pub fn cleanup_stale(run: &RunId) -> Result<(), IpcError> {
     let node_dir = String::from_utf8_lossy(cfg.global.node_dir().as_bytes()).into_owned();
     if alive == 0 && (complete || !Path::new(&node_dir).exists()) {
         let prefix = run.prefix();
-        remove_prefixed(Path::new("/dev/shm"), &prefix, 0)?;
+        remove_prefixed(Path::new(SHM), &prefix, 0)?;
         remove_prefixed(Path::new(&root), &prefix, 3)?;
     }
     Ok(())
 }
+
+/// Makes every shared-memory file of `run` readable and writable by its owner only, and checks that it is ours.
+/// iceoryx2 creates its management segment (`/dev/shm/PREFIX..._node..global_mgmt`) writable by everyone, so any
+/// local user could write into the run's bookkeeping: 16 bytes there, and every worker started after fails to
+/// create its node. The coordinator calls this right after creating its node, before any worker exists.
+pub(crate) fn restrict_to_owner(run: &RunId) -> Result<(), IpcError> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let prefix = run.prefix();
+    let Ok(entries) = std::fs::read_dir(SHM) else { return Ok(()) };
+    // SAFETY: geteuid has no preconditions and cannot fail.
+    let me = unsafe { libc::geteuid() };
+    for entry in entries.flatten() {
+        if !entry.file_name().as_encoded_bytes().starts_with(prefix.as_bytes()) {
+            continue;
+        }
+        let path = entry.path();
+        let io = |source| IpcError::Io { what: format!("restricting {} to its owner", path.display()), source };
+        let meta = match std::fs::symlink_metadata(&path) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(io(e)),
+        };
+        if meta.uid() != me || !meta.file_type().is_file() {
+            return Err(IpcError::Io {
+                what: format!("{}: a file of this run that is not ours (owner uid {})", path.display(), meta.uid()),
+                source: std::io::Error::from(std::io::ErrorKind::PermissionDenied),
+            });
+        }
+        if meta.mode() & 0o077 != 0 {
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).map_err(io)?;
+        }
+    }
+    Ok(())
+}
+
+/// Where POSIX shared memory lives.
+const SHM: &str = "/dev/shm";
 
 /// Removes the files named `prefix*` in `dir` and, up to `depth` levels, in its subdirectories.
 fn remove_prefixed(dir: &Path, prefix: &str, depth: usize) -> Result<(), IpcError> {

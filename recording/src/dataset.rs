@@ -2,7 +2,7 @@
 //! listed once or followed while a generation adds them. Shards are renamed into place whole, so a listed `*.mcap`
 //! is always complete; the writers' temporary files are never picked up.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::generator::GeneratorConfig;
@@ -52,6 +52,44 @@ impl ShardFollower {
             Err(e) => Err(e),
         }
     }
+}
+
+/// The shards the ledger of the run directory `dir` records done, by file name, with the content hash each had when
+/// its worker wrote it: what a shard read as data must still hash to (its data-section CRC covers only the bytes, a
+/// rewritten file can carry a new one). `None` for a folder of shards without a manifest (not a `generate` directory).
+pub fn recorded_shards(dir: &Path) -> Result<Option<BTreeMap<String, u64>>, ReadError> {
+    let Some(manifest) = Manifest::load(dir)? else { return Ok(None) };
+    let path = dir.join(dynforge_proto::run_dir::LEDGER);
+    let entries = dynforge_proto::ledger::read(&path)
+        .map_err(|e| ReadError::Content { file: path.display().to_string(), problem: e.to_string() })?;
+    Ok(Some(dynforge_proto::ledger::done_shards(&entries, manifest.seed, manifest.sim.engine.name())))
+}
+
+/// The content hash the ledger of its run directory records for the shard file `path` (`DIR/shards/NAME`), if it is
+/// one and the ledger records it done.
+pub fn recorded_hash(path: &Path) -> Option<u64> {
+    let shards = path.parent()?;
+    if shards.file_name()? != dynforge_proto::run_dir::SHARDS {
+        return None;
+    }
+    let name = path.file_name()?.to_str()?;
+    recorded_shards(shards.parent()?).ok()??.get(name).copied()
+}
+
+/// An error unless the shard `bytes` (of the file `path`) hash to `recorded`, what the run's ledger says its worker
+/// wrote.
+pub fn check_recorded(bytes: &[u8], path: &Path, recorded: u64) -> Result<(), ReadError> {
+    let actual = dynforge_proto::content_hash(bytes);
+    if actual == recorded {
+        return Ok(());
+    }
+    Err(ReadError::Content {
+        file: path.display().to_string(),
+        problem: format!(
+            "its content hash is {actual:016x}, the run's ledger records {recorded:016x}: changed or damaged after \
+             it was written"
+        ),
+    })
 }
 
 /// What a run directory's manifest says about the robots: the generator configuration and the dataset seed.

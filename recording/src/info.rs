@@ -6,7 +6,7 @@ use std::path::Path;
 
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::read::{ReadError, read_bag};
+use crate::read::{Gap, ReadError, first_gap, read_bag};
 
 /// A log's summary.
 #[derive(Debug, Clone)]
@@ -22,12 +22,46 @@ pub struct Info {
     pub robot: Option<Result<(String, usize), dynforge_robot::model::ModelProblem>>,
     /// Metadata records: name -> (key, value), in file order of keys.
     pub metadata: Vec<(String, Vec<(String, String)>)>,
+    /// The first jump of the stamps by more than a few sampling periods, and how many there are.
+    pub gaps: Option<(Gap, usize)>,
+    /// What vouches for the file's content.
+    pub check: Check,
+}
+
+/// What vouches for a log's content: a shard's labels are outside the chunks the MCAP reader checks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Check {
+    /// Its data-section CRC matched.
+    Crc,
+    /// It hashes to what its run directory's ledger records (checked also when it has a CRC).
+    Ledger,
+    /// Nothing: no CRC (MCAP allows that), and no ledger records it.
+    None,
 }
 
 impl Info {
     /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
     pub fn of(path: &Path) -> Result<Info, ReadError> {
         let (files, bag) = read_bag(path)?;
+        let check = match crate::dataset::recorded_hash(&files[0]) {
+            Some(recorded) if files.len() == 1 => {
+                let bytes = std::fs::read(&files[0])
+                    .map_err(|e| ReadError::Content { file: files[0].display().to_string(), problem: e.to_string() })?;
+                crate::dataset::check_recorded(&bytes, &files[0], recorded)?;
+                Check::Ledger
+            }
+            _ if bag.crc_checked => Check::Crc,
+            _ => Check::None,
+        };
+        let mut sorted: Vec<i64> = bag.joint_states.iter().map(|m| m.stamp_ns()).collect();
+        sorted.sort_unstable();
+        sorted.dedup();
+        let first = sorted.first().copied().unwrap_or(0);
+        let t: Vec<f64> = sorted.iter().map(|&s| (s - first) as f64 * 1e-9).collect();
+        let gaps = first_gap(&t).map(|g| {
+            let n = t.windows(2).filter(|w| w[1] - w[0] > crate::log::GAP_PERIODS * g.period).count();
+            (g, n)
+        });
         let bytes = files.iter().map(|f| std::fs::metadata(f).map_or(0, |m| m.len())).sum();
         let file = if files.len() == 1 { files[0].clone() } else { path.to_path_buf() };
         let stamps: Vec<f64> = bag.joint_states.iter().map(|m| m.stamp_ns() as f64 * 1e-9).collect();
@@ -45,6 +79,8 @@ impl Info {
             joints: bag.joint_states.first().map(|m| m.name.to_vec()).unwrap_or_default(),
             robot,
             metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
+            gaps,
+            check,
         })
     }
 }
@@ -54,12 +90,40 @@ impl std::fmt::Display for Info {
         writeln!(f, "File:        {} ({:.1} MB)", self.file, self.bytes as f64 / 1e6)?;
         match self.span {
             Some((a, b)) => {
-                let rate = if b > a { (self.joint_states as f64 - 1.0) / (b - a) } else { f64::NAN };
                 writeln!(f, "Duration:    {:.3} s (stamps {a:.6} .. {b:.6} s)", b - a)?;
-                writeln!(f, "/joint_states: {} messages, {rate:.1} Hz mean", self.joint_states)?;
+                match self.gaps {
+                    // Messages over the whole span would count the gaps as time sampled.
+                    Some((g, _)) => writeln!(
+                        f,
+                        "/joint_states: {} messages, {:.1} Hz (median period)",
+                        self.joint_states,
+                        1.0 / g.period
+                    )?,
+                    None if b > a => writeln!(
+                        f,
+                        "/joint_states: {} messages, {:.1} Hz mean",
+                        self.joint_states,
+                        (self.joint_states as f64 - 1.0) / (b - a)
+                    )?,
+                    None => writeln!(f, "/joint_states: {} message(s) at one stamp: no rate", self.joint_states)?,
+                }
             }
             None => writeln!(f, "/joint_states: none")?,
         }
+        if let Some((g, n)) = self.gaps {
+            writeln!(
+                f,
+                "Gaps:        {n} (the first {:.3} s long, after t = {:.3} s): `identify` reads the stretches apart; \
+                 `estimate` and `train` refuse the log",
+                g.length, g.after
+            )?;
+        }
+        let check = match self.check {
+            Check::Crc => "data-section CRC matches",
+            Check::Ledger => "content hash matches its run's ledger",
+            Check::None => "nothing: no data-section CRC and no run ledger records it (labels are not trusted)",
+        };
+        writeln!(f, "Checked:     {check}")?;
         writeln!(f, "Joints:      {}", if self.joints.is_empty() { "-".into() } else { self.joints.join(", ") })?;
         match &self.robot {
             Some(Ok((name, dof))) => writeln!(f, "Robot:       {name} ({dof} moving joints, from /robot_description)")?,

@@ -16,5 +16,8 @@ mod read;
 pub mod resample;
 pub mod samples;
 
-pub use read::{GRID_DT, ReadError, Recording, log_files, read, read_bag, robot_document};
+pub use read::{
+    GRID_DT, Gap, ReadError, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,
+    robot_document,
+};
 pub use samples::JointTrajectory;

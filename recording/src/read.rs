@@ -6,6 +6,7 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_robot::{Model, urdf};
 
+use crate::log::GAP_PERIODS;
 use crate::resample::resample;
 use crate::samples::{JointTrajectory, SamplesError, from_bag};
 
@@ -64,7 +65,7 @@ pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
 }
 
 /// The bag of a log (a file, or every file of a rosbag2 directory joined: messages in recording order, the
-/// `/robot_description` of whichever file has one, metadata of all).
+/// `/robot_description` of whichever file has one, metadata of all; CRC-checked if every file was).
 pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
     let files = log_files(path)?;
     let mut bag = dynforge_shard::read(&files[0])?;
@@ -78,8 +79,29 @@ pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), Read
         bag.joint_states.extend(more.joint_states);
         bag.robot_description = more.robot_description.or(bag.robot_description);
         bag.metadata.extend(more.metadata);
+        bag.crc_checked &= more.crc_checked;
     }
     Ok((files, bag))
+}
+
+/// An error unless writing `out` leaves every input in `inputs` (log files or rosbag2 directories) as it is: `out` is
+/// none of their files (however the paths are spelt: `./log.mcap`, a link), and not inside one's directory.
+pub fn check_not_an_input(out: &Path, inputs: &[PathBuf]) -> Result<(), ReadError> {
+    use dynforge_proto::run_dir::resolve;
+    let target = resolve(out);
+    for input in inputs {
+        let input = resolve(input);
+        if target == input || (input.is_dir() && target.starts_with(&input)) {
+            return Err(ReadError::Content {
+                file: out.display().to_string(),
+                problem: format!(
+                    "this output would overwrite the input {} (or a file of it): choose another --out",
+                    input.display()
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// The URDF document of the robot of `log`: the file `urdf` when given, else the log's `/robot_description`; with the
@@ -103,7 +125,17 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
 /// `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
     let (files, bag) = read_bag(path)?;
-    let path = &files[0];
+    recording(&files[0], bag, model)
+}
+
+/// [`read`] of a shard already in memory (`bytes`, the content of the file `path`), for readers that check the bytes
+/// themselves (against a run's ledger) before trusting them.
+pub fn read_shard_bytes(bytes: &[u8], path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
+    recording(path, dynforge_shard::read_bytes(bytes, path)?, model)
+}
+
+/// The recording of `bag`, read from `path` (its first file).
+fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Result<Recording, ReadError> {
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let model = match (model, &bag.robot_description) {
@@ -114,8 +146,28 @@ pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> 
         (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
     };
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
-    let trajectory = resample(&from_bag(&bag, &names, path)?, GRID_DT);
+    let samples = from_bag(&bag, &names, path)?;
+    // Put on the grid whole, a stretch between two stamps a day apart would be 86 million interpolated samples.
+    if let Some(gap) = first_gap(&samples.t) {
+        return Err(content(format!(
+            "the stamps jump by {:.3} s after t = {:.3} s (more than {GAP_PERIODS} sampling periods of {:.3} ms): a \
+             gap in the recording, which this command reads as one continuous motion. Cut the log at its gaps, or \
+             calibrate with `dynforge identify`, which reads the stretches between gaps apart",
+            gap.length,
+            gap.after,
+            gap.period * 1e3
+        )));
+    }
+    let trajectory = resample(&samples, GRID_DT);
     let labels = match bag.metadata.get(META_LABELS) {
+        // The labels are outside the chunks the reader checks: only the data-section CRC vouches for them.
+        Some(_) if !bag.crc_checked => {
+            return Err(content(
+                "it carries dataset labels but no data-section CRC (0), so nothing shows they are as written (every \
+                 shard dynforge writes has one): a shard rewritten by another tool, or edited"
+                    .into(),
+            ));
+        }
         Some(map) => {
             let mut y = [0.0; NUM_LABELS];
             for (v, l) in y.iter_mut().zip(LABELS.iter()) {
@@ -130,6 +182,24 @@ pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> 
     };
     let robot = bag.metadata.get(META_JOB).and_then(|m| m.get("robot")).and_then(|r| r.parse().ok());
     Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot })
+}
+
+/// A jump in a recording's stamps: more than [`GAP_PERIODS`] times its median sampling period.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gap {
+    /// The stamp it follows [s, from the first], its length [s], and the median period [s].
+    pub after: f64,
+    pub length: f64,
+    pub period: f64,
+}
+
+/// The first gap of the sample times `t` (increasing), if any.
+pub fn first_gap(t: &[f64]) -> Option<Gap> {
+    let steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    let mut sorted = steps.clone();
+    sorted.sort_by(f64::total_cmp);
+    let period = *sorted.get(sorted.len() / 2)?;
+    steps.iter().position(|&s| s > GAP_PERIODS * period).map(|i| Gap { after: t[i], length: steps[i], period })
 }
 
 impl Recording {

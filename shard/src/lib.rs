@@ -47,8 +47,8 @@ fn mcap_err(path: &Path) -> impl Fn(mcap::McapError) -> ShardError + '_ {
 }
 
 /// Writes a shard to `path` by the temporary-file rule ([`dynforge_proto::run_dir`]); the same content always gives
-/// the same bytes.
-/// Returns the file's [`content_hash`].
+/// the same bytes, and a data-section CRC that is not 0 (see [`read_bytes`]: readers refuse a dataset shard without
+/// one). Returns the file's [`content_hash`].
 pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError> {
     if path.file_name().is_none() {
         return Err(ShardError::Content { path: path.into(), message: "not a file path".into() });
@@ -56,15 +56,27 @@ pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError>
     dynforge_proto::run_dir::replace_atomically(
         path,
         |tmp| {
-            write_file(tmp, content)?;
-            Ok(content_hash(&std::fs::read(tmp).map_err(io_err(tmp))?))
+            let mut metadata = content.metadata.clone();
+            for nonce in 1u32.. {
+                write_file(tmp, &ShardContent { metadata: &metadata, ..*content })?;
+                let bytes = std::fs::read(tmp).map_err(io_err(tmp))?;
+                // MCAP's 0 means "no CRC". One CRC in 2^32 is 0: a record that changes the bytes, deterministically.
+                if data_section_crc(&bytes) != Some(0) {
+                    return Ok(content_hash(&bytes));
+                }
+                metadata.insert(NONZERO_CRC.into(), [("nonce".to_string(), nonce.to_string())].into());
+            }
+            unreachable!("a CRC other than 0 within 2^32 nonces")
         },
         |p, e| io_err(p)(e),
     )
 }
 
+/// The metadata record a shard whose data-section CRC would be 0 gets, to change it.
+const NONZERO_CRC: &str = "dynforge_nonzero_crc";
+
 fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
+    let file = dynforge_proto::run_dir::create_temporary(path).map_err(io_err(path))?;
     let me = mcap_err(path);
     let mut w = mcap::WriteOptions::new()
         .profile(contract::PROFILE)
@@ -153,16 +165,7 @@ pub fn write_joint_trajectory(
     )
 }
 
-/// A stable 64-bit content hash of a shard's bytes (FNV-1a), recorded in the ledger and checked by `verify`: cheap
-/// enough for workers to compute on every shard, and fixed forever (no dependency can change it).
-pub fn content_hash(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
+pub use dynforge_proto::content_hash;
 
 /// A decoded bag or shard.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -172,6 +175,9 @@ pub struct Bag {
     /// Every `/joint_states` message, in file order.
     pub joint_states: Vec<JointState>,
     pub metadata: Metadata,
+    /// Whether the file carried a data-section CRC, which matched (MCAP allows none: a bag without one is read, but
+    /// nothing vouches for its records outside chunks, such as a shard's labels).
+    pub crc_checked: bool,
 }
 
 /// Reads a shard or a ROS 2 bag. Truncated or corrupt files are errors naming the file, never panics.
@@ -180,32 +186,43 @@ pub fn read(path: &Path) -> Result<Bag, ShardError> {
     read_bytes(&bytes, path)
 }
 
-/// Checks the CRC the writer put in the file's DataEnd record (MCAP's `data_section_crc`: every byte from the
-/// leading magic up to that record) when there is one. The reader checks each chunk's CRC but not this one, and
-/// the records outside chunks (our labels and job, the robot description) are covered by nothing else: without this
-/// check a label edited in place would be read, and trained on, without a word. Files without the CRC (0) pass.
-fn check_data_section(bytes: &[u8]) -> Result<(), CrcMismatch> {
+/// The CRC the writer put in the file's DataEnd record (MCAP's `data_section_crc`: every byte from the leading magic
+/// up to that record; 0 means none was computed), if the file ends in the records that carry it. Any offset that does
+/// not fit is a malformed file: `None`, left to the MCAP reader to report.
+fn data_section_crc(bytes: &[u8]) -> Option<u32> {
+    data_end(bytes).map(|at| u32::from_le_bytes(bytes[at + 9..at + 13].try_into().expect("4 bytes")))
+}
+
+/// Where the DataEnd record starts.
+fn data_end(bytes: &[u8]) -> Option<usize> {
     const MAGIC: usize = 8;
     const FOOTER: usize = 1 + 8 + 8 + 8 + 4;
     const DATA_END: usize = 1 + 8 + 4;
     let u64_at = |at: usize| bytes.get(at..at + 8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
-    // Any offset that does not fit is a malformed file: left to the MCAP reader to report.
-    let Some(footer) = bytes.len().checked_sub(MAGIC + FOOTER) else { return Ok(()) };
+    let footer = bytes.len().checked_sub(MAGIC + FOOTER)?;
     if bytes.get(footer) != Some(&0x02) {
-        return Ok(());
+        return None;
     }
     let summary_start = u64_at(footer + 9).and_then(|v| usize::try_from(v).ok()).unwrap_or(0);
     let end = if summary_start == 0 { footer } else { summary_start };
-    let Some(data_end) = end.checked_sub(DATA_END).filter(|&d| d + DATA_END <= footer) else { return Ok(()) };
-    if bytes.get(data_end) != Some(&0x0F) || u64_at(data_end + 1) != Some(4) {
-        return Ok(());
+    let data_end = end.checked_sub(DATA_END).filter(|&d| d + DATA_END <= footer)?;
+    (bytes.get(data_end) == Some(&0x0F) && u64_at(data_end + 1) == Some(4)).then_some(data_end)
+}
+
+/// Checks the data-section CRC when the file has one; whether it had. The reader checks each chunk's CRC but not this
+/// one, and the records outside chunks (our labels and job, the robot description) are covered by nothing else:
+/// without this check a label edited in place would be read, and trained on, without a word.
+fn check_data_section(bytes: &[u8]) -> Result<bool, CrcMismatch> {
+    let Some(at) = data_end(bytes) else { return Ok(false) };
+    let recorded = u32::from_le_bytes(bytes[at + 9..at + 13].try_into().expect("4 bytes"));
+    if recorded == 0 {
+        return Ok(false);
     }
-    let recorded = u32::from_le_bytes(bytes[data_end + 9..data_end + 13].try_into().expect("4 bytes"));
-    let actual = crc32fast::hash(&bytes[..data_end]);
-    if recorded != 0 && recorded != actual {
+    let actual = crc32fast::hash(&bytes[..at]);
+    if recorded != actual {
         return Err(CrcMismatch { recorded, actual });
     }
-    Ok(())
+    Ok(true)
 }
 
 /// A file whose data section does not have the CRC it records.
@@ -223,8 +240,8 @@ struct CrcMismatch {
 pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
     let me = mcap_err(path);
     let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
-    check_data_section(bytes).map_err(|e| content(e.to_string()))?;
-    let mut bag = Bag::default();
+    let crc_checked = check_data_section(bytes).map_err(|e| content(e.to_string()))?;
+    let mut bag = Bag { crc_checked, ..Bag::default() };
     let summary = mcap::read::Summary::read(bytes).map_err(&me)?;
     let decoded = match summary.as_ref().filter(|s| !s.chunk_indexes.is_empty() && !top_level_messages(bytes)) {
         Some(summary) => read_chunks(bytes, summary, path)?,
@@ -322,14 +339,6 @@ fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Resu
 
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn content_hash_is_fnv1a_64() {
-        // Published FNV-1a 64 test vectors.
-        assert_eq!(super::content_hash(b""), 0xcbf2_9ce4_8422_2325);
-        assert_eq!(super::content_hash(b"a"), 0xaf63_dc4c_8601_ec8c);
-        assert_eq!(super::content_hash(b"foobar"), 0x8594_4171_f739_67e8);
-    }
-
     #[test]
     fn a_label_edited_in_place_is_refused_by_the_data_section_crc() {
         use super::*;

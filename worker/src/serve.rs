@@ -24,9 +24,21 @@ pub enum ServeError {
 /// worker sleeps that long before running each job, so "hung" does not depend on how fast the machine is.
 pub const STALL_ENV: &str = "DYNFORGE_FAULT_WORKER_STALL";
 
+/// Fault injection for tests of the coordinator's start deadline: when set to a number of seconds, every worker
+/// sleeps that long before it joins the run, as one stopped or stuck in its start-up would.
+pub const START_STALL_ENV: &str = "DYNFORGE_FAULT_WORKER_START_STALL";
+
+/// Seconds of the fault injection `name`, if set.
+fn stall_of(name: &str) -> Option<f64> {
+    std::env::var(name).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s > 0.0)
+}
+
 /// Serves slot `slot` of the run in `dir`. Returns when the coordinator stops the worker or goes away.
 pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
-    let stall = std::env::var(STALL_ENV).ok().and_then(|s| s.parse::<f64>().ok()).filter(|s| s.is_finite() && *s > 0.0);
+    if let Some(seconds) = stall_of(START_STALL_ENV) {
+        std::thread::sleep(std::time::Duration::from_secs_f64(seconds));
+    }
+    let stall = stall_of(STALL_ENV);
     let manifest =
         Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.join(MANIFEST).display().to_string()))?;
     let run = RunId::for_dir(dir)?;

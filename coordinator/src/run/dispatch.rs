@@ -23,6 +23,7 @@ impl Run<'_> {
                 let request = JobRequest { job_id: plan::job_id(&job, self.cfg.trajectories), job };
                 self.ipc.send(k, &request)?;
                 self.running[k] = Some((job, Instant::now()));
+                self.starts[k] = super::Start::ready();
             }
         }
         Ok(())

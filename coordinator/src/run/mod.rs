@@ -16,13 +16,14 @@ use std::time::{Duration, Instant};
 use dynforge_ipc::{Coordinator, IpcError, RunId};
 use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::job::Job;
-use dynforge_proto::run_dir::{LEDGER, LOGS, MANIFEST, SHARDS, is_temporary};
+use dynforge_proto::run_dir::{CACHE, LEDGER, LOGS, MANIFEST, SHARDS, remove_temporaries};
 use dynforge_proto::sim::SimConfig;
 
 use crate::ledger::{Entry, Ledger, LedgerError, Status};
 use crate::lock::{LockError, RunLock};
-use crate::plan::{self, Partition};
+use crate::plan::{self, Partition, Plan};
 use dynforge_proto::manifest::{Manifest, ManifestError};
+use liveness::Start;
 use processes::Processes;
 pub use progress::{Observer, Progress};
 
@@ -65,10 +66,19 @@ pub enum GenerateError {
     Ledger(#[from] LedgerError),
     #[error(transparent)]
     Ipc(#[from] IpcError),
+    #[error("{file}: cannot open the worker's log: {source}")]
+    WorkerLog { file: String, source: std::io::Error },
     #[error("starting worker {slot} ({program}): {source}")]
     Spawn { slot: usize, program: String, source: std::io::Error },
     #[error("interrupted: {finished} of {total} jobs are recorded; run the same command again to resume")]
     Interrupted { finished: u64, total: u64 },
+    #[error("no worker could be started ({why}); {finished} of {total} jobs are recorded, the same command resumes")]
+    NoWorkers { why: String, finished: u64, total: u64 },
+    #[error(
+        "{dir}/{LEDGER} records {count} job(s) that {dir}/{MANIFEST} does not plan (the first: {first}): the ledger \
+         and the manifest are of different runs; restore the run's own manifest, or use a new directory"
+    )]
+    Foreign { dir: String, count: usize, first: String },
     #[error(
         "{failed} job(s) failed (reasons in {dir}/{LEDGER} and the worker logs in {dir}/{LOGS}); rerun the same \
          command to retry them"
@@ -80,59 +90,97 @@ pub enum GenerateError {
 /// coordinator get their kill signal as it dies, and release the lock within milliseconds.
 const LOCK_WAIT: Duration = Duration::from_secs(5);
 
-/// Removes temporary files that crashed writers left in the shard directory (only its owner may: see [`RunLock`]).
-fn remove_leftovers(shards: &Path) -> std::io::Result<usize> {
+/// Removes the temporary files that killed writers left in the run directory, its shards and its caches (only the
+/// lock's holder may: see [`RunLock`]); how many.
+fn remove_leftovers(dir: &Path) -> std::io::Result<usize> {
     let mut n = 0;
-    for entry in std::fs::read_dir(shards)? {
-        let entry = entry?;
-        let name = entry.file_name().to_string_lossy().to_string();
-        if is_temporary(&name) {
-            match std::fs::remove_file(entry.path()) {
-                Ok(()) => n += 1,
-                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-                Err(e) => return Err(e),
-            }
-        }
+    for d in [dir.to_path_buf(), dir.join(SHARDS), dir.join(CACHE)] {
+        n += remove_temporaries(&d)?;
     }
     Ok(n)
 }
+
+/// The lock's description of a generation, for anyone refused meanwhile.
+pub const GENERATING: &str = "generate";
 
 /// A generation in progress: the queue, what each worker runs, and the durable record.
 struct Run<'a> {
     cfg: &'a GenerateConfig,
     ledger: Ledger,
-    pending: VecDeque<Job>,
+    pending: Queue,
     /// Per worker slot: its job and when it was sent.
     running: Vec<Option<(Job, Instant)>>,
+    /// Per worker slot: its start-up ([`liveness`]).
+    starts: Vec<Start>,
     /// Failed attempts per job id.
     attempts: HashMap<u64, u32>,
     progress: Progress,
     ipc: Coordinator,
     procs: Processes,
     interrupted: bool,
+    /// Why the run ends before its jobs do: no worker could be started.
+    no_workers: Option<String>,
     started: Instant,
 }
+
+/// The jobs left to hand out: jobs to retry first, then the plan's jobs not finished in an earlier run, made as they
+/// are needed (a run of any size holds none of its jobs in memory).
+struct Queue {
+    retries: VecDeque<Job>,
+    planned: std::iter::Peekable<Box<dyn Iterator<Item = Job>>>,
+}
+
+impl Queue {
+    fn pop_front(&mut self) -> Option<Job> {
+        self.retries.pop_front().or_else(|| self.planned.next())
+    }
+
+    fn push_front(&mut self, job: Job) {
+        self.retries.push_front(job);
+    }
+
+    fn is_empty(&mut self) -> bool {
+        self.retries.is_empty() && self.planned.peek().is_none()
+    }
+}
+
+/// Worker processes per core a run starts at most: more only wait for a core, each holding its memory (~35 MB).
+pub const WORKERS_PER_CORE: usize = 4;
 
 /// Runs (or resumes) a generation. Returns the final progress.
 pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Progress, GenerateError> {
     check_settings(cfg)?;
     // Nothing in the directory is touched before it is ours.
-    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT)?;
+    let lock = RunLock::acquire(&cfg.dir, LOCK_WAIT, GENERATING)?;
     let (ledger, finished) = open_run_dir(cfg, observer)?;
-    let all: Vec<Job> = plan::jobs(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition).collect();
-    let mut progress = Progress { total: all.len() as u64, slots: vec![None; cfg.workers], ..Progress::default() };
+    let plan = Plan { seed: cfg.seed, robots: cfg.robots, trajectories: cfg.trajectories, partition: cfg.partition };
+    let mut progress = Progress { total: plan.len(), ..Progress::default() };
     for status in finished.values() {
         progress.record(status);
     }
     progress.resumed = progress.finished();
-    let pending: VecDeque<Job> =
-        all.into_iter().filter(|j| !finished.contains_key(&plan::job_id(j, cfg.trajectories))).collect();
-    if pending.is_empty() {
+    let left = progress.total - progress.resumed;
+    if left == 0 {
         observer.update(&progress);
         return Ok(progress);
     }
-    let workers = cfg.workers.min(pending.len());
-    progress.slots.truncate(workers);
+    let done: std::collections::BTreeSet<u64> = finished.into_keys().collect();
+    let trajectories = cfg.trajectories;
+    let planned: Box<dyn Iterator<Item = Job>> =
+        Box::new(plan.jobs().filter(move |j| !done.contains(&plan::job_id(j, trajectories))));
+    let pending = Queue { retries: VecDeque::new(), planned: planned.peekable() };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let most = WORKERS_PER_CORE * cores;
+    let wanted = cfg.workers.min(usize::try_from(left).unwrap_or(usize::MAX));
+    if wanted > most {
+        observer.message(&format!(
+            "--workers {}: starting {most} ({WORKERS_PER_CORE} per core, {cores} here): more worker processes only \
+             wait for a core, each holding its memory",
+            cfg.workers
+        ));
+    }
+    let workers = wanted.min(most);
+    progress.slots = vec![None; workers];
 
     let id = RunId::for_dir(&cfg.dir)?;
     dynforge_ipc::cleanup_stale(&id)?;
@@ -147,11 +195,13 @@ pub fn generate(cfg: &GenerateConfig, observer: &mut dyn Observer) -> Result<Pro
         ledger,
         pending,
         running: vec![None; workers],
+        starts: vec![Start::new(); workers],
         attempts: HashMap::new(),
         progress,
         ipc,
         procs,
         interrupted: false,
+        no_workers: None,
         started: Instant::now(),
     };
     run.drive(observer)
@@ -221,9 +271,18 @@ fn open_run_dir(
         observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
     }
     let (ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
-    let removed = remove_leftovers(&cfg.dir.join(SHARDS)).map_err(dir_err)?;
+    let plan = Plan { seed: cfg.seed, robots: cfg.robots, trajectories: cfg.trajectories, partition: cfg.partition };
+    let foreign: Vec<&Entry> = entries.iter().filter(|e| !plan.records(e)).collect();
+    if let Some(e) = foreign.first() {
+        return Err(GenerateError::Foreign {
+            dir: cfg.dir.display().to_string(),
+            count: foreign.len(),
+            first: format!("job {}, robot {} trajectory {}", e.job_id, e.robot, e.trajectory),
+        });
+    }
+    let removed = remove_leftovers(&cfg.dir).map_err(dir_err)?;
     if removed > 0 {
-        observer.message(&format!("removed {removed} partial shard file(s) left by an interrupted run"));
+        observer.message(&format!("removed {removed} partial file(s) left by an interrupted run"));
     }
     Ok((ledger, finished_jobs(cfg, &entries, &pruned, observer)))
 }
@@ -265,7 +324,7 @@ impl Run<'_> {
         let (mut last_status, mut last_liveness) = (Instant::now() - Duration::from_secs(1), Instant::now());
         loop {
             self.dispatch()?;
-            if self.busy() == 0 && (self.pending.is_empty() || self.interrupted) {
+            if self.busy() == 0 && (self.pending.is_empty() || self.interrupted || self.no_workers.is_some()) {
                 break;
             }
             self.receive(observer)?;
@@ -310,7 +369,7 @@ impl Run<'_> {
         drop(self.procs);
         // Workers killed mid-write (dead, hung, interrupted) leave partial temporary files; no writer is left now.
         let dir_err = |source| GenerateError::Dir { dir: self.cfg.dir.display().to_string(), source };
-        remove_leftovers(&self.cfg.dir.join(SHARDS)).map_err(dir_err)?;
+        remove_leftovers(&self.cfg.dir).map_err(dir_err)?;
         let p = &mut self.progress;
         p.in_flight = 0;
         p.slots = vec![None; self.running.len()];
@@ -319,6 +378,9 @@ impl Run<'_> {
         observer.update(p);
         if self.interrupted {
             return Err(GenerateError::Interrupted { finished: p.finished(), total: p.total });
+        }
+        if let Some(why) = self.no_workers {
+            return Err(GenerateError::NoWorkers { why, finished: p.finished(), total: p.total });
         }
         Ok(self.progress)
     }

@@ -7,7 +7,7 @@ use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-use dynforge_proto::run_dir::LOGS;
+use dynforge_proto::run_dir::{LOGS, open_for_writing};
 
 use super::GenerateError;
 use crate::lock::RunLock;
@@ -24,6 +24,11 @@ impl Processes {
         Processes { command, dir, children: (0..slots).map(|_| None).collect(), lock }
     }
 
+    /// The log of worker slot `slot` (its stderr).
+    pub(super) fn log(&self, slot: usize) -> PathBuf {
+        self.dir.join(LOGS).join(format!("worker-{slot}.log"))
+    }
+
     /// Slots with a started process.
     pub(super) fn alive(&self) -> usize {
         self.children.iter().filter(|c| c.is_some()).count()
@@ -31,12 +36,9 @@ impl Processes {
 
     pub(super) fn spawn(&mut self, slot: usize) -> Result<(), GenerateError> {
         self.kill(slot);
-        let logs = self.dir.join(LOGS);
-        let log = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(logs.join(format!("worker-{slot}.log")))
-            .map_err(|source| GenerateError::Dir { dir: logs.display().to_string(), source })?;
+        let path = self.log(slot);
+        let log = open_for_writing(std::fs::OpenOptions::new().create(true).append(true), &path)
+            .map_err(|source| GenerateError::WorkerLog { file: path.display().to_string(), source })?;
         let (program, args) = self.command.split_first().expect("a worker command");
         let (lock, parent) = (self.lock.fd(), std::process::id());
         let mut command = Command::new(program);
@@ -81,14 +83,14 @@ impl Processes {
         }
     }
 
-    /// Slots whose process has exited (before or without the coordinator noticing through iceoryx2).
-    pub(super) fn exited(&mut self) -> Vec<usize> {
+    /// Slots whose process has exited (before or without the coordinator noticing through iceoryx2), with how.
+    pub(super) fn exited(&mut self) -> Vec<(usize, std::process::ExitStatus)> {
         let mut out = Vec::new();
         for (k, c) in self.children.iter_mut().enumerate() {
             if let Some(child) = c
-                && matches!(child.try_wait(), Ok(Some(_)))
+                && let Ok(Some(status)) = child.try_wait()
             {
-                out.push(k);
+                out.push((k, status));
             }
         }
         out

@@ -2,7 +2,7 @@
 //! a damaged or truncated cache is detected and rebuilt instead of read.
 
 use dynforge_proto::NUM_LABELS;
-use dynforge_shard::content_hash;
+use dynforge_proto::content_hash;
 
 pub(crate) struct Encoder(Vec<u8>);
 
@@ -25,6 +25,13 @@ impl Encoder {
 
     pub(crate) fn f64s(&mut self, v: &[f64]) -> &mut Self {
         v.iter().for_each(|x| self.0.extend(x.to_le_bytes()));
+        self
+    }
+
+    /// A length-prefixed byte string.
+    pub(crate) fn bytes(&mut self, v: &[u8]) -> &mut Self {
+        self.u64s([v.len() as u64]);
+        self.0.extend(v);
         self
     }
 
@@ -55,6 +62,12 @@ impl<'a> Decoder<'a> {
 
     pub(crate) fn u64(&mut self) -> Option<u64> {
         self.values(1, u64::from_le_bytes)?.pop()
+    }
+
+    /// A byte string written by [`Encoder::bytes`].
+    pub(crate) fn bytes(&mut self) -> Option<&'a [u8]> {
+        let n = self.usize()?;
+        self.take(n)
     }
 
     /// A count or size, which must fit this machine.

@@ -5,10 +5,11 @@ use std::path::Path;
 
 use dynforge_identify::{Evidence, PAIRING_REVISION, ParameterPrior, packed_len};
 use dynforge_proto::NUM_LABELS;
-use dynforge_recording::{Recording, read};
+use dynforge_proto::lock::RunLock;
+use dynforge_recording::{Recording, read_shard_bytes};
 
 use super::codec::{Decoder, Encoder};
-use super::{CacheError, CacheKey, Cached, CombineError, Skipped};
+use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
 use crate::evidence::{NOISE_FLOOR, recording_evidence};
 use crate::window::WindowSpec;
 
@@ -132,14 +133,26 @@ impl PhysicsSet {
         PhysicsSet { spec, windows: EvidenceList::new(rank), recordings: EvidenceList::new(rank), hit: false }
     }
 
-    /// The physics of every shard of the `generate` directory `dir` (see [`super::load_or_build`]).
+    /// The physics of every shard of the `generate` directory `dir` (see [`super::load_or_build`]), with the shards
+    /// that had to be skipped.
     pub fn load_or_build(
         dir: &Path,
         spec: &WindowSpec,
         prior: &ParameterPrior,
         progress: impl FnMut(usize, usize) -> bool,
     ) -> Result<(Self, Vec<Skipped>), CacheError> {
-        super::load_or_build(dir, &EvidenceSettings { spec: *spec, prior: prior.clone() }, progress)
+        Self::load(dir, spec, prior, None, progress).map(|l| (l.cache, l.skipped))
+    }
+
+    /// [`Self::load_or_build`] with all it found out, by the holder of `dir`'s lock `lock` if given.
+    pub fn load(
+        dir: &Path,
+        spec: &WindowSpec,
+        prior: &ParameterPrior,
+        lock: Option<&RunLock>,
+        progress: impl FnMut(usize, usize) -> bool,
+    ) -> Result<Loaded<Self>, CacheError> {
+        super::load_or_build(dir, &EvidenceSettings { spec: *spec, prior: prior.clone() }, lock, progress)
     }
 
     /// Adds a dataset recording (with labels and robot id): its windows' and its whole evidence.
@@ -189,8 +202,8 @@ impl Cached for PhysicsSet {
         PhysicsSet::new(s.spec, s.prior.rank())
     }
 
-    fn read_shard(path: &Path, s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
-        of_recording(&read(path, None)?, s)
+    fn read_shard(path: &Path, bytes: &[u8], s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
+        of_recording(&read_shard_bytes(bytes, path, None)?, s)
     }
 
     fn append(&mut self, _path: &Path, r: RecordingEvidence) -> Result<(), Skipped> {

@@ -5,18 +5,30 @@
 //! determines it ([`CacheKey`]), written atomically (a crash mid-write leaves the previous state) and checksummed (a
 //! damaged file fails its check and is rebuilt); and the caches of a run's partitions combined into the merged
 //! directory's ([`partitions`]).
+//!
+//! A cache is all a pruned shard's data, so it is never partial: each shard is checked against the content hash the
+//! run's ledger recorded when its worker wrote it (a shard changed since, or not recorded, is skipped), a cache is
+//! written only when it holds every shard the ledger records done, and its file lists those shards with their hashes
+//! ([`Held`]), which is what `prepare --prune` checks before it deletes one. Only the holder of the run directory's
+//! lock writes a cache ([`dynforge_proto::lock`]); `train` takes it for the moment of the write, or leaves the cache
+//! unwritten when another command holds it.
 
 pub(crate) mod codec;
 pub mod evidence;
 pub mod partitions;
 pub mod windows;
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
-use dynforge_proto::run_dir::{CACHE, LEDGER, MANIFEST, PRUNED, SHARDS, read_pruned};
+use dynforge_proto::content_hash;
+use dynforge_proto::lock::RunLock;
+use dynforge_proto::run_dir::{CACHE, LEDGER, MANIFEST, PRUNED, SHARDS, read_pruned, remove_temporaries};
 use dynforge_recording::ReadError;
-use dynforge_recording::dataset::list_shards;
-use dynforge_shard::content_hash;
+use dynforge_recording::dataset::{check_recorded, list_shards, recorded_shards};
+
+use codec::{Decoder, Encoder};
 
 /// Why a cache could not be had.
 #[derive(Debug, thiserror::Error)]
@@ -78,7 +90,8 @@ pub trait Cached: Sized {
     /// The preprocessing half of the file name.
     fn key(settings: &Self::Settings) -> CacheKey;
     fn empty(settings: &Self::Settings) -> Self;
-    fn read_shard(path: &Path, settings: &Self::Settings) -> Result<Self::Shard, Skipped>;
+    /// One shard's contribution, from the file's `bytes` (read and checked by the caller).
+    fn read_shard(path: &Path, bytes: &[u8], settings: &Self::Settings) -> Result<Self::Shard, Skipped>;
     fn append(&mut self, path: &Path, shard: Self::Shard) -> Result<Self::Added, Skipped>;
     fn encode(&self) -> Vec<u8>;
     /// `None` unless `bytes` is an intact cache of this kind; the result says it came from a file.
@@ -87,60 +100,188 @@ pub trait Cached: Sized {
     fn combine(parts: &[Self]) -> Result<Self, CombineError>;
 }
 
-/// Appends the shards `paths` to `cache`, in their order: for each, what was added or why it was skipped. Shards
-/// are read on all cores, a chunk at a time, and appended in order, so the result is that of reading them one by
-/// one. `progress(done, total)` before each chunk and at the end; `false` stops before the next chunk (the result
-/// then has fewer entries than `paths`).
+/// The shards a cache holds, by file name, with the content hash each had when it was read (the ledger's record).
+pub type Held = BTreeMap<String, u64>;
+
+/// Appends the shards `paths` to `cache`, in their order: for each, what was added (and the shard's content hash) or
+/// why it was skipped. With `recorded` (a run's ledger: name -> content hash), a shard whose bytes do not hash to its
+/// record, or that has none, is skipped. Shards are read on all cores, a chunk at a time, and appended in order, so
+/// the result is that of reading them one by one. `progress(done, total)` before each chunk and at the end; `false`
+/// stops before the next chunk (the result then has fewer entries than `paths`).
 pub fn add_shards<C: Cached>(
     cache: &mut C,
     paths: &[PathBuf],
     settings: &C::Settings,
+    recorded: Option<&Held>,
     mut progress: impl FnMut(usize, usize) -> bool,
-) -> Vec<Result<C::Added, Skipped>> {
+) -> Vec<Result<(C::Added, u64), Skipped>> {
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
     let mut out = Vec::with_capacity(paths.len());
     for chunk in paths.chunks(C::CHUNK_PER_THREAD * threads) {
         if !progress(out.len(), paths.len()) {
             return out;
         }
-        let read = dynforge_proto::parallel::map_in_order(chunk, |p| C::read_shard(p, settings));
+        let read = dynforge_proto::parallel::map_in_order(chunk, |p| read_checked::<C>(p, settings, recorded));
         for (p, r) in chunk.iter().zip(read) {
-            out.push(r.and_then(|s| cache.append(p, s)));
+            out.push(r.and_then(|(s, hash)| Ok((cache.append(p, s)?, hash))));
         }
     }
     progress(out.len(), paths.len());
     out
 }
 
-/// The cache of kind `C` of every shard of the `generate` directory `dir`: from its file if current, else built
-/// (calling `progress(done, total)` per chunk of shards; `false` stops, an error, with nothing cached) and written.
-/// Shards that cannot be read, or are not dataset shards, are skipped and returned.
+/// The shard `path` read for `C`, with its content hash, after the check against `recorded` (see [`add_shards`]).
+fn read_checked<C: Cached>(
+    path: &Path,
+    settings: &C::Settings,
+    recorded: Option<&Held>,
+) -> Result<(C::Shard, u64), Skipped> {
+    let bytes = std::fs::read(path).map_err(|e| Skipped::new(path, e))?;
+    if let Some(recorded) = recorded {
+        match recorded.get(&file_name(path)) {
+            Some(&hash) => check_recorded(&bytes, path, hash)?,
+            None => {
+                return Err(Skipped::new(
+                    path,
+                    format!(
+                        "not recorded done in the run's {LEDGER} (a generation still writing, or a file of another run)"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok((C::read_shard(path, &bytes, settings)?, content_hash(&bytes)))
+}
+
+fn file_name(path: &Path) -> String {
+    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
+/// A run directory's cache of one kind: from its file, or built from the shards.
+#[derive(Debug)]
+pub struct Loaded<C> {
+    pub cache: C,
+    /// Whether it came from its file.
+    pub hit: bool,
+    /// The shards it holds; `None` for a file written before caches recorded them (read only where the shards were
+    /// pruned: anywhere else it is rebuilt).
+    pub held: Option<Held>,
+    /// Shards left out of a cache just built: it was then not written.
+    pub skipped: Vec<Skipped>,
+    /// Why a cache just built was not written, when it was not (shards skipped, the directory locked by another
+    /// command).
+    pub unwritten: Option<String>,
+}
+
+/// The cache of kind `C` of every shard the ledger of the `generate` directory `dir` records done: from its file if
+/// current, else built (calling `progress(done, total)` per chunk of shards; `false` stops, an error, with nothing
+/// cached) and, if no shard had to be skipped, written. `lock` is the directory's lock when the caller holds it
+/// (`prepare`); without it the lock is taken for the write, and the cache is left unwritten when another command
+/// holds it. Shards that cannot be read, are not dataset shards, or do not match the ledger are skipped and returned.
 pub fn load_or_build<C: Cached>(
     dir: &Path,
     settings: &C::Settings,
+    lock: Option<&RunLock>,
     progress: impl FnMut(usize, usize) -> bool,
-) -> Result<(C, Vec<Skipped>), CacheError> {
+) -> Result<Loaded<C>, CacheError> {
     let path = C::key(settings).path(dir)?;
-    if let Some(c) = std::fs::read(&path).ok().and_then(|b| C::decode(&b)) {
-        return Ok((c, Vec::new()));
-    }
-    check_not_pruned(dir, C::KIND)?;
     let io = |p: &Path| {
         let shown = p.display().to_string();
         move |source| CacheError::Io { path: shown.clone(), source }
     };
+    let list = dir.join(PRUNED);
+    let pruned = read_pruned(dir).map_err(io(&list))?;
+    if let Some((cache, held)) = std::fs::read(&path).ok().and_then(|b| decode_file::<C>(&b)) {
+        // A file from before caches recorded their shards is read only where nothing else is left.
+        if held.is_some() || !pruned.is_empty() {
+            return Ok(Loaded { cache, hit: true, held, skipped: Vec::new(), unwritten: None });
+        }
+    }
+    let recorded = recorded_shards(dir)?.unwrap_or_default();
     let shards = dir.join(SHARDS);
     let paths = list_shards(&shards).map_err(io(&shards))?;
+    // After the listing: a prune records a shard in its list before deleting it, so a shard the listing missed
+    // because a prune deleted it is in the list read now.
+    check_not_pruned(dir, C::KIND)?;
     let mut cache = C::empty(settings);
-    let added = add_shards(&mut cache, &paths, settings, progress);
+    let added = add_shards(&mut cache, &paths, settings, Some(&recorded), progress);
     if added.len() < paths.len() {
         return Err(CacheError::Interrupted(dir.display().to_string()));
     }
-    let skipped = added.into_iter().filter_map(Result::err).collect();
+    let mut held = Held::new();
+    let mut skipped = Vec::new();
+    for (p, r) in paths.iter().zip(added) {
+        match r {
+            Ok((_, hash)) => {
+                held.insert(file_name(p), hash);
+            }
+            Err(s) => skipped.push(s),
+        }
+    }
+    let listed: BTreeSet<String> = paths.iter().map(|p| file_name(p)).collect();
+    for name in recorded.keys().filter(|n| !listed.contains(*n)) {
+        let problem = "recorded done in the ledger, but missing (`dynforge verify --repair` then `generate` remake it)";
+        skipped.push(Skipped::new(&shards.join(name), problem));
+    }
+    let unwritten = match skipped.len() {
+        0 => write_cache(dir, &path, &encode_file(&cache, &held), lock)?,
+        n => Some(format!("not cached: {n} shard(s) skipped")),
+    };
+    Ok(Loaded { cache, hit: false, held: Some(held), skipped, unwritten })
+}
+
+/// Writes the cache file `bytes` to `path` in the run directory `dir` holding its lock (`lock`, else taken here:
+/// `Some(why)` instead of writing when another command holds it). Temporary files of killed cache writers go first.
+fn write_cache(dir: &Path, path: &Path, bytes: &[u8], lock: Option<&RunLock>) -> Result<Option<String>, CacheError> {
+    let _taken = match lock {
+        Some(_) => None,
+        None => match RunLock::acquire(dir, Duration::ZERO, "cache write (train or evaluate)") {
+            Ok(l) => Some(l),
+            Err(e) => return Ok(Some(format!("not cached: {e}"))),
+        },
+    };
     let cache_dir = dir.join(CACHE);
-    std::fs::create_dir_all(&cache_dir).map_err(io(&cache_dir))?;
-    dynforge_proto::run_dir::write_atomic(&path, &cache.encode()).map_err(io(&path))?;
-    Ok((cache, skipped))
+    let io = |source| CacheError::Io { path: cache_dir.display().to_string(), source };
+    std::fs::create_dir_all(&cache_dir).map_err(io)?;
+    remove_temporaries(&cache_dir).map_err(io)?;
+    dynforge_proto::run_dir::write_atomic(path, bytes)
+        .map_err(|source| CacheError::Io { path: path.display().to_string(), source })?;
+    Ok(None)
+}
+
+/// A cache file: [`FILE_MAGIC`], the length of the checksummed list of the shards it holds, the list, then the kind's
+/// own encoding (checksummed itself: the list's check does not read the whole file).
+const FILE_MAGIC: &[u8; 8] = b"DFCACHE2";
+const HELD_MAGIC: &[u8; 8] = b"DFHELD01";
+
+pub(crate) fn encode_file<C: Cached>(cache: &C, held: &Held) -> Vec<u8> {
+    let mut list = Encoder::new(HELD_MAGIC, held.len() * 48);
+    list.u64s([held.len() as u64]);
+    for (name, hash) in held {
+        list.bytes(name.as_bytes()).u64s([*hash]);
+    }
+    let list = list.finish();
+    let mut out = FILE_MAGIC.to_vec();
+    out.extend((list.len() as u64).to_le_bytes());
+    out.extend(list);
+    out.extend(cache.encode());
+    out
+}
+
+/// A cache file's content and held shards (`None` for the format before caches recorded them: the kind's encoding
+/// alone); `None` unless intact.
+pub(crate) fn decode_file<C: Cached>(bytes: &[u8]) -> Option<(C, Option<Held>)> {
+    let Some(rest) = bytes.strip_prefix(FILE_MAGIC) else { return C::decode(bytes).map(|c| (c, None)) };
+    let (len, rest) = rest.split_first_chunk::<8>()?;
+    let (list, inner) = rest.split_at_checked(usize::try_from(u64::from_le_bytes(*len)).ok()?)?;
+    let mut d = Decoder::open(list, HELD_MAGIC)?;
+    let mut held = Held::new();
+    for _ in 0..d.usize()? {
+        let name = String::from_utf8(d.bytes()?.to_vec()).ok()?;
+        held.insert(name, d.u64()?);
+    }
+    d.done().then_some(())?;
+    Some((C::decode(inner)?, Some(held)))
 }
 
 /// Names a cache file of a run directory: `KIND-PPPPPPPPPPPPPPPP-DDDDDDDDDDDDDDDD.bin`, where P hashes the

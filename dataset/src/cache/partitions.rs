@@ -14,7 +14,7 @@ use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_atomic};
 
 use super::evidence::PhysicsSet;
 use super::windows::CachedWindows;
-use super::{CacheKey, Cached, dataset_hash, dataset_hash_of};
+use super::{CacheKey, Cached, Held, dataset_hash, dataset_hash_of, decode_file, encode_file};
 
 const KINDS: [&str; 2] = [CachedWindows::KIND, PhysicsSet::KIND];
 
@@ -139,15 +139,22 @@ impl Plan {
     }
 }
 
-/// The cache files `files` (bytes, path) of kind `C` combined, encoded; an error names the first that is not an
-/// intact cache of the kind.
+/// The cache files `files` (bytes, path) of kind `C` combined, encoded, holding the shards all of them hold (a
+/// partition's file from before caches recorded their shards makes one without the list); an error names the first
+/// that is not an intact cache of the kind.
 fn combine_files<C: Cached>(files: &[(Vec<u8>, PathBuf)]) -> Result<Vec<u8>, PartitionsError> {
-    let parts = files
+    let (parts, held): (Vec<C>, Vec<Option<Held>>) = files
         .iter()
-        .map(|(b, p)| C::decode(b).ok_or_else(|| PartitionsError::Damaged(p.display().to_string(), C::KIND)))
-        .collect::<Result<Vec<C>, _>>()?;
+        .map(|(b, p)| decode_file::<C>(b).ok_or_else(|| PartitionsError::Damaged(p.display().to_string(), C::KIND)))
+        .collect::<Result<Vec<_>, _>>()?
+        .into_iter()
+        .unzip();
     let combined = C::combine(&parts).map_err(|source| PartitionsError::Combine { kind: C::KIND, source })?;
-    Ok(combined.encode())
+    let held: Option<Vec<Held>> = held.into_iter().collect();
+    Ok(match held {
+        Some(lists) => encode_file(&combined, &lists.into_iter().flatten().collect()),
+        None => combined.encode(),
+    })
 }
 
 #[cfg(test)]

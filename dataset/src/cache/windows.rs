@@ -4,10 +4,11 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::NUM_LABELS;
-use dynforge_recording::{GRID_DT, read};
+use dynforge_proto::lock::RunLock;
+use dynforge_recording::{GRID_DT, read_shard_bytes};
 
 use super::codec::{Decoder, Encoder};
-use super::{CacheError, CacheKey, Cached, CombineError, Skipped};
+use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
 use crate::features::JacobianFeatures;
 use crate::window::WindowSpec;
 use crate::windows::{row_width, windows};
@@ -53,14 +54,26 @@ impl CachedWindows {
         self.labels.len()
     }
 
-    /// The windows of every shard of the `generate` directory `dir` (see [`super::load_or_build`]).
+    /// The windows of every shard of the `generate` directory `dir` (see [`super::load_or_build`]), with the shards
+    /// that had to be skipped.
     pub fn load_or_build(
         dir: &Path,
         spec: &WindowSpec,
         features: &JacobianFeatures,
         progress: impl FnMut(usize, usize) -> bool,
     ) -> Result<(Self, Vec<Skipped>), CacheError> {
-        super::load_or_build(dir, &WindowSettings { spec: *spec, features: features.clone() }, progress)
+        Self::load(dir, spec, features, None, progress).map(|l| (l.cache, l.skipped))
+    }
+
+    /// [`Self::load_or_build`] with all it found out, by the holder of `dir`'s lock `lock` if given.
+    pub fn load(
+        dir: &Path,
+        spec: &WindowSpec,
+        features: &JacobianFeatures,
+        lock: Option<&RunLock>,
+        progress: impl FnMut(usize, usize) -> bool,
+    ) -> Result<Loaded<Self>, CacheError> {
+        super::load_or_build(dir, &WindowSettings { spec: *spec, features: features.clone() }, lock, progress)
     }
 
     /// Appends the windows of the dataset shards `paths` (see [`super::add_shards`]): for each shard its robot and
@@ -71,7 +84,7 @@ impl CachedWindows {
         features: &JacobianFeatures,
     ) -> Vec<Result<(u64, Range<usize>), Skipped>> {
         let settings = WindowSettings { spec: self.spec, features: features.clone() };
-        super::add_shards(self, paths, &settings, |_, _| true)
+        super::add_shards(self, paths, &settings, None, |_, _| true).into_iter().map(|r| r.map(|(a, _)| a)).collect()
     }
 }
 
@@ -102,8 +115,8 @@ impl Cached for CachedWindows {
         CachedWindows::new(s.spec)
     }
 
-    fn read_shard(path: &Path, s: &WindowSettings) -> Result<ShardWindows, Skipped> {
-        let prep = read(path, None)?;
+    fn read_shard(path: &Path, bytes: &[u8], s: &WindowSettings) -> Result<ShardWindows, Skipped> {
+        let prep = read_shard_bytes(bytes, path, None)?;
         let (Some(labels), Some(robot)) = (prep.labels, prep.robot) else {
             return Err(Skipped::new(path, "no labels or robot id (not a dataset shard)"));
         };

@@ -99,19 +99,19 @@ fn load_inputs(
     let spec = c.window_spec();
     Ok(match c.parameter_prior() {
         Some(prior) => {
-            let (set, _) = PhysicsSet::load_or_build(data, &spec, &prior, |k, n| {
+            let loaded = PhysicsSet::load(data, &spec, &prior, None, |k, n| {
                 progress("physics", k, n);
                 true
             })?;
-            Inputs::Physics(set)
+            Inputs::Physics(loaded.cache)
         }
         None => {
             let features = JacobianFeatures::new(&dataset_robot(data)?);
-            let (w, _) = CachedWindows::load_or_build(data, &spec, &features, |k, n| {
+            let loaded = CachedWindows::load(data, &spec, &features, None, |k, n| {
                 progress("windows", k, n);
                 true
             })?;
-            Inputs::Windows(w)
+            Inputs::Windows(loaded.cache)
         }
     })
 }

@@ -107,6 +107,12 @@ impl Network {
     }
 }
 
+/// A size for counting parameters: sizes past 2^32 count as 2^32 (the count is then past any machine's memory
+/// anyway), so that products of a few of them cannot overflow.
+fn dimension(v: usize) -> u128 {
+    (v as u128).min(1 << 32)
+}
+
 /// `[B, 1, F]` -> `[B, F]`.
 fn flat(x: Tensor<3>) -> Tensor<2> {
     let [b, s, f] = x.dims();

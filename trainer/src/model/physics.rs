@@ -71,11 +71,13 @@ impl PhysicsConfig {
         })
     }
 
-    /// Trainable parameters.
+    /// Trainable parameters; past what any machine holds, a number still (to refuse), not an overflow.
     pub fn parameters(&self) -> usize {
-        (self.inputs * self.hidden + self.hidden)
-            + (self.layers - 1) * (self.hidden * self.hidden + self.hidden)
-            + (self.hidden * NUM_LABELS + NUM_LABELS)
+        let [inputs, hidden, layers] = [self.inputs, self.hidden, self.layers].map(super::dimension);
+        let n = (inputs * hidden + hidden)
+            + layers.saturating_sub(1) * (hidden * hidden + hidden)
+            + (hidden * NUM_LABELS as u128 + NUM_LABELS as u128);
+        usize::try_from(n).unwrap_or(usize::MAX)
     }
 }
 

@@ -114,18 +114,21 @@ impl TransformerConfig {
         })
     }
 
-    /// Trainable parameters.
+    /// Trainable parameters; past what any machine holds, a number still (to refuse), not an overflow.
     pub fn parameters(&self) -> usize {
-        let d = self.d_model;
-        let layer = 4 * (d * d + d) + (d * self.d_ff + self.d_ff) + (self.d_ff * d + d) + 4 * d;
-        (self.inputs * self.patch * d + d)
-            + self.layers * layer
+        let sizes = [self.d_model, self.d_ff, self.inputs, self.patch, self.layers];
+        let [d, ff, inputs, patch, layers] = sizes.map(super::dimension);
+        let (joints, slots) = (JOINTS as u128, SLOTS as u128);
+        let layer = 4 * (d * d + d) + (d * ff + ff) + (ff * d + d) + 4 * d;
+        let n = (inputs * patch * d + d)
+            + layers * layer
             + 2 * d
-            + JOINTS * d
+            + joints * d
             + 4 * (d * d + d)
             + 2 * d
             + layer
-            + (d * SLOTS + SLOTS)
+            + (d * slots + slots);
+        usize::try_from(n).unwrap_or(usize::MAX)
     }
 }
 

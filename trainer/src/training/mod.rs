@@ -249,6 +249,28 @@ fn load_state(
     Ok((optim, state))
 }
 
+/// This machine's physical memory [bytes], when the OS says.
+fn physical_memory() -> Option<u128> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kb = info.lines().find_map(|l| l.strip_prefix("MemTotal:"))?.trim().strip_suffix("kB")?.trim().parse::<u128>();
+    Some(kb.ok()? * 1024)
+}
+
+/// An error when holding `bytes` at once (for `what`) takes more memory than this machine has: refused with the
+/// flag to change, before an allocation that would abort the process.
+pub fn check_memory(bytes: u128, what: impl FnOnce() -> String) -> Result<(), TrainError> {
+    let gb = |b: u128| b as f64 / 1e9;
+    match physical_memory() {
+        Some(have) if bytes > have => Err(TrainError::Setup(format!(
+            "{} would need {:.1} GB of memory; this machine has {:.1} GB",
+            what(),
+            gb(bytes),
+            gb(have)
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// CPU time this process has used so far, all threads; 0 where the OS does not say.
 fn process_cpu_seconds() -> f64 {
     // SAFETY: getrusage only writes the struct it is given.
@@ -316,6 +338,19 @@ pub fn train<E: Examples>(
     if cfg.batch == 0 || cfg.epochs == 0 {
         return Err(TrainError::Setup("batch size and epochs must be positive".into()));
     }
+    // Not a divergence to report later: no step with this rate means anything.
+    if !(cfg.lr > 0.0 && cfg.lr.is_finite()) {
+        return Err(TrainError::Setup(format!("learning rate {} is not a positive finite number", cfg.lr)));
+    }
+    let parameters = checkpoint.model.parameters();
+    // Weights, gradients and AdamW's two moments, and the replica each micro-batch runs on, all f32.
+    let bytes = parameters as u128 * 4 * (4 + cfg.micro_batches as u128);
+    check_memory(bytes, || {
+        format!(
+            "the model's {parameters} parameters (weights, gradients, optimizer moments, a copy per micro-batch; \
+             fewer --layers or a smaller --dim)"
+        )
+    })?;
     let device = Device::default().autodiff();
     device.seed(cfg.seed);
     let mut model = checkpoint.model.init(&device)?;

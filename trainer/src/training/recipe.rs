@@ -7,6 +7,8 @@ use dynforge_dataset::window::WindowSpec;
 
 use super::TrainConfig;
 use crate::model::{PhysicsConfig, Preset, TransformerConfig};
+#[cfg(feature = "clap")]
+use dynforge_proto::flags::{positive, whole};
 
 /// The architecture: the estimator, and the parts of its default size a run overrides.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,37 +103,37 @@ pub struct RecipeFlags {
     /// Transformer architecture preset [default: paper; pipeline: fast].
     #[cfg_attr(feature = "clap", arg(long, value_enum))]
     pub preset: Option<Preset>,
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 16)))]
     pub layers: Option<usize>,
     /// Transformer: attention heads.
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 16)))]
     pub heads: Option<usize>,
     /// Transformer: embedding size; physics: hidden width.
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 24)))]
     pub dim: Option<usize>,
     /// Transformer: time steps per token.
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 16)))]
     pub patch: Option<usize>,
     #[cfg_attr(feature = "clap", arg(long))]
     pub dropout: Option<f64>,
     /// Sequence length L (time steps per window).
-    #[cfg_attr(feature = "clap", arg(long = "len", default_value_t = 64))]
+    #[cfg_attr(feature = "clap", arg(long = "len", default_value_t = 64, value_parser = whole::<usize>(1, 1 << 20)))]
     pub len: usize,
     /// Stride between the time steps of a window, in 1 kHz samples (the paper's "sampling rate").
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = 64))]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 64, value_parser = whole::<usize>(1, 1 << 20)))]
     pub stride: usize,
     /// Secondary sampling rate: window offsets 0, SSR, 2 SSR, ... below the stride.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = 16))]
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 16, value_parser = whole::<usize>(1, 1 << 20)))]
     pub ssr: usize,
     /// Maximum epochs [default: 30; pipeline: 12 (transformer)].
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 20)))]
     pub epochs: Option<usize>,
     /// Examples per step [default: transformer 64, physics 256].
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 24)))]
     pub batch: Option<usize>,
     /// Peak learning rate (AdamW; linear warmup over 5 % of the steps, then cosine decay) [default: transformer
     /// 5e-4, physics 1e-3].
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = positive))]
     pub lr: Option<f64>,
     /// Epochs without a better validation loss before stopping early.
     #[cfg_attr(feature = "clap", arg(long))]
@@ -144,10 +146,10 @@ pub struct RecipeFlags {
     pub validation: f64,
     /// Parts each batch is split into, each run on a thread of its own (part of the run's definition, not of the
     /// machine: the same value gives the same model anywhere) [default: transformer 4, physics 2].
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, 1 << 10)))]
     pub micro_batches: Option<usize>,
     /// Physics: robots drawn from the generator per epoch (paired with real windows' excitation; never simulated).
-    #[cfg_attr(feature = "clap", arg(long))]
+    #[cfg_attr(feature = "clap", arg(long, value_parser = whole::<usize>(1, u32::MAX as u64)))]
     pub generated: Option<usize>,
     /// Physics: train on generated robots only; the dataset's windows give the excitations and the validation.
     #[cfg_attr(feature = "clap", arg(long))]

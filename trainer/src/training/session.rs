@@ -10,7 +10,7 @@ use dynforge_dataset::examples::Examples;
 
 use dynforge_dataset::cache::evidence::PhysicsSet;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::cache::{CacheError, Skipped};
+use dynforge_dataset::cache::{CacheError, Loaded, Skipped};
 use dynforge_dataset::evidence::{self, Draw, EvidenceError, draw_seed};
 use dynforge_dataset::examples::ExampleRecord;
 use dynforge_dataset::examples::corpus::Corpus;
@@ -19,6 +19,7 @@ use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::{Standardizer, split_windows};
 use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::window::WindowSpec;
+use dynforge_proto::NUM_LABELS;
 use dynforge_recording::ReadError;
 use dynforge_recording::dataset::{ShardFollower, dataset_robot, generator, shard_dir};
 
@@ -114,17 +115,7 @@ impl Session<'_> {
         if r.window.len == 0 || r.window.stride == 0 || r.window.ssr == 0 {
             return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
         }
-        let resume = self.resume && resumable(self.out);
-        if self.resume && !resume {
-            observer.message(&format!("{} holds no run to resume; starting a new one", self.out.display()));
-        }
-        if !resume && Checkpoint::read(self.out).is_ok() {
-            return Err(SessionError::Setup(format!(
-                "{} already holds a checkpoint: pass --resume to continue it, or choose another --out",
-                self.out.display()
-            )));
-        }
-        let previous = if resume { Some(Checkpoint::read(self.out)?) } else { None };
+        let (previous, resume) = self.previous(observer)?;
         match previous.as_ref().map_or(r.model.kind, |c| match c.model {
             NetworkConfig::Transformer(_) => ModelKind::Transformer,
             NetworkConfig::Physics(_) => ModelKind::Physics,
@@ -132,6 +123,47 @@ impl Session<'_> {
             ModelKind::Transformer => self.transformer(previous, resume, observer),
             ModelKind::Physics => self.physics(previous, resume, observer),
         }
+    }
+
+    /// The run in `out` this session continues, if any, and whether it saved a state to resume from. Without --resume
+    /// a run there is refused; with it, a run on other data is (its model would be replaced by one fitted to those),
+    /// and one stopped before its first save (kill -9 or a full disk in epoch 0: a description and no state) is
+    /// trained again from its start, with its settings.
+    fn previous(&self, observer: &mut dyn SessionObserver) -> Result<(Option<Checkpoint>, bool), SessionError> {
+        let out = self.out.display();
+        let described = match Checkpoint::read(self.out) {
+            Ok(c) => Some(c),
+            // A resume state without its description: not to be overwritten by a new run.
+            Err(e) if resumable(self.out) => return Err(e.into()),
+            Err(_) => None,
+        };
+        let Some(c) = described else {
+            if self.resume {
+                observer.message(&format!("{out} holds no run to resume; starting a new one"));
+            }
+            return Ok((None, false));
+        };
+        if !self.resume {
+            return Err(SessionError::Setup(format!(
+                "{out} already holds a checkpoint: pass --resume to continue it, or choose another --out"
+            )));
+        }
+        let data = std::fs::canonicalize(self.data).unwrap_or(self.data.to_path_buf()).display().to_string();
+        if !c.dataset.is_empty() && c.dataset != data {
+            return Err(SessionError::Setup(format!(
+                "{out} was trained on {}, not on {data}: resume it with its own data, or train on {data} into another \
+                 --out",
+                c.dataset
+            )));
+        }
+        if !resumable(self.out) {
+            observer.message(&format!(
+                "{out} stopped before its first save (no resume state): training it again from its start, with its \
+                 settings"
+            ));
+            return Ok((Some(c), false));
+        }
+        Ok((Some(c), true))
     }
 
     fn training_run(&self, resume: bool) -> Run<'_> {
@@ -227,18 +259,13 @@ impl Session<'_> {
         }
         let robot = dataset_robot(self.data)?;
         let features = JacobianFeatures::new(&robot);
-        let (w, skipped) = CachedWindows::load_or_build(self.data, spec, &features, |k, n| {
+        let loaded = CachedWindows::load(self.data, spec, &features, None, |k, n| {
             observer.preprocessing("windows", k, n);
             !self.stop.load(Ordering::Relaxed)
         })?;
-        skip(observer, &skipped);
-        observer.message(&format!(
-            "{} windows of {} x {} values ({})",
-            w.count(),
-            spec.len,
-            w.width,
-            if w.hit { "from the cache" } else { "built and cached" }
-        ));
+        let origin = origin(observer, &loaded);
+        let w = loaded.cache;
+        observer.message(&format!("{} windows of {} x {} values ({origin})", w.count(), spec.len, w.width));
         Ok((w, features, robot))
     }
 
@@ -322,17 +349,17 @@ impl Session<'_> {
                 evidence::generator_prior(&generator_cfg, seed)?
             }
         };
-        let (set, skipped) = PhysicsSet::load_or_build(self.data, &spec, &prior, |k, n| {
+        let loaded = PhysicsSet::load(self.data, &spec, &prior, None, |k, n| {
             observer.preprocessing("physics", k, n);
             !self.stop.load(Ordering::Relaxed)
         })?;
-        skip(observer, &skipped);
+        let origin = origin(observer, &loaded);
+        let set = loaded.cache;
         observer.message(&format!(
-            "physics of {} windows and {} recordings in {} prior coordinates ({})",
+            "physics of {} windows and {} recordings in {} prior coordinates ({origin})",
             set.windows.len(),
             set.recordings.len(),
             prior.rank(),
-            if set.hit { "from the cache" } else { "computed and cached" }
         ));
         let record = ExampleRecord {
             generated_per_epoch: self.recipe.generated_per_epoch,
@@ -342,6 +369,12 @@ impl Session<'_> {
         let source =
             PhysicsSource { generator: generator_cfg, seed: draw_seed(seed, Draw::Synthetic), examples: record };
         let mut examples = PhysicsExamples::new(&set, prior, split, source)?;
+        // An epoch's generated robots are drawn and held at once (twice, while they are gathered).
+        let per_robot = (examples.shape()[1] * 4 + NUM_LABELS * 8 + 8) as u128;
+        let generated = self.recipe.generated_per_epoch;
+        super::check_memory(2 * generated as u128 * per_robot, || {
+            format!("--generated {generated}: an epoch's robots")
+        })?;
         let checkpoint = self.physics_checkpoint(previous, &examples, &spec, split, record, observer)?;
         observer.message(&format!(
             "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
@@ -410,6 +443,16 @@ impl Session<'_> {
                 }
             }
         }
+    }
+}
+
+/// Where a cache came from, as the session's message says it; the shards skipped on the way are warned of.
+fn origin<C>(observer: &mut dyn SessionObserver, loaded: &Loaded<C>) -> String {
+    skip(observer, &loaded.skipped);
+    match (&loaded.unwritten, loaded.hit) {
+        (_, true) => "from the cache".into(),
+        (Some(why), false) => format!("built; {why}"),
+        (None, false) => "built and cached".into(),
     }
 }
 

@@ -13,8 +13,8 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::job::Job;
-use dynforge_shard::content_hash;
+use crate::content_hash;
+use crate::job::Job;
 
 /// How a job ended.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -128,6 +128,18 @@ pub fn latest(entries: &[Entry]) -> BTreeMap<u64, &Entry> {
     entries.iter().map(|e| (e.job_id, e)).collect()
 }
 
+/// The shards the ledger `entries` of a run with dataset seed `seed` and engine `engine` records done (each job's
+/// latest record), by file name, with the content hash the worker that wrote it recorded.
+pub fn done_shards(entries: &[Entry], seed: u64, engine: &str) -> BTreeMap<String, u64> {
+    latest(entries)
+        .values()
+        .filter_map(|e| match e.status {
+            Status::Done { shard_hash, .. } => Some((e.shard_name(seed, engine), shard_hash)),
+            _ => None,
+        })
+        .collect()
+}
+
 /// Reads a ledger without changing it (for `status` and `verify`). A missing file is an empty ledger.
 pub fn read(path: &Path) -> Result<Vec<Entry>, LedgerError> {
     match std::fs::read(path) {
@@ -147,7 +159,8 @@ impl Ledger {
     /// Opens (or creates) the ledger, returning its entries; cuts off a torn last line.
     pub fn open(path: &Path) -> Result<(Ledger, Vec<Entry>), LedgerError> {
         let io = |source| LedgerError::Io { path: path.to_path_buf(), source };
-        let mut file = OpenOptions::new().read(true).append(true).create(true).open(path).map_err(io)?;
+        let mut file = crate::run_dir::open_for_writing(OpenOptions::new().read(true).append(true).create(true), path)
+            .map_err(io)?;
         let mut bytes = Vec::new();
         std::io::Read::read_to_end(&mut file, &mut bytes).map_err(io)?;
         let (entries, valid) = parse_all(&String::from_utf8_lossy(&bytes), path)?;

@@ -1,0 +1,50 @@
+//! The value rules of the command line's numeric flags, as parsers a flag names (`value_parser = whole(1, MAX)`):
+//! a value out of range is refused before anything runs, with what the flag takes, instead of becoming a panic
+//! (capacity overflow), an abort (an allocation of terabytes) or a run that means nothing (`--lr nan`). Shared by the
+//! `dynforge` binary and the trainer's flags.
+
+/// Robots a dataset may have: 12,000 times the paper's 8192. Far more is a typing mistake, and a run of that size
+/// would write petabytes.
+pub const MAX_ROBOTS: u64 = 100_000_000;
+
+/// A parser of whole numbers from `lo` to `hi`.
+pub fn whole<T>(lo: u64, hi: u64) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
+where
+    T: TryFrom<u64>,
+{
+    move |s: &str| {
+        let refuse = || format!("expected a whole number from {lo} to {hi}");
+        let v: u64 = s.trim().parse().map_err(|_| refuse())?;
+        if !(lo..=hi).contains(&v) {
+            return Err(refuse());
+        }
+        T::try_from(v).map_err(|_| refuse())
+    }
+}
+
+/// A finite number above 0.
+pub fn positive(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err("expected a positive finite number".into()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn out_of_range_values_are_refused_saying_what_is_taken() {
+        let robots = whole::<u64>(1, MAX_ROBOTS);
+        assert_eq!(robots("8192"), Ok(8192));
+        for bad in ["-1", "0", "1e9", "10000000000", "18446744073709551616", "x", ""] {
+            assert_eq!(robots(bad), Err("expected a whole number from 1 to 100000000".into()), "{bad}");
+        }
+        assert_eq!(whole::<u8>(0, 1000)("300"), Err("expected a whole number from 0 to 1000".into()));
+        assert_eq!(positive("5e-4"), Ok(5e-4));
+        for bad in ["nan", "inf", "-1", "0", "x"] {
+            assert!(positive(bad).is_err(), "{bad}");
+        }
+    }
+}
