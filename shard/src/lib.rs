@@ -72,38 +72,46 @@ pub fn write(path: &Path, content: &ShardContent<'_>) -> Result<u64, ShardError>
     )
 }
 
-/// The metadata record a shard whose data-section CRC would be 0 gets, to change it.
-const NONZERO_CRC: &str = "dynforge_nonzero_crc";
+type Ros2Writer = mcap::Writer<BufWriter<std::fs::File>>;
 
-fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
-    let file = dynforge_proto::run_dir::create_temporary(path).map_err(io_err(path))?;
-    let me = mcap_err(path);
-    let mut w = mcap::WriteOptions::new()
+/// An MCAP writer as rosbag2 writes them (its profile, zstd chunks), with fixed library string, chunk size and no
+/// compression threads, so the same content gives the same bytes.
+fn ros2_writer(file: std::fs::File, path: &Path) -> Result<Ros2Writer, ShardError> {
+    mcap::WriteOptions::new()
         .profile(contract::PROFILE)
         .library(contract::LIBRARY)
         .compression(Some(mcap::Compression::Zstd))
         .chunk_size(Some(CHUNK_SIZE))
         .compression_threads(0)
         .create(BufWriter::new(file))
-        .map_err(&me)?;
+        .map_err(mcap_err(path))
+}
+
+/// A channel on `topic` of the `ros2msg` schema `name` with `definition`; its id.
+fn channel(w: &mut Ros2Writer, path: &Path, name: &str, definition: &str, topic: &str) -> Result<u16, ShardError> {
+    let me = mcap_err(path);
+    let schema = w.add_schema(name, contract::SCHEMA_ENCODING, definition.as_bytes()).map_err(&me)?;
     // rosbag2 parses this key; an empty value means "no QoS profiles recorded".
-    let channel_meta = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
-    let string_schema = w
-        .add_schema(contract::SCHEMA_STRING, contract::SCHEMA_ENCODING, contract::STRING_DEFINITION.as_bytes())
-        .map_err(&me)?;
-    let description = w
-        .add_channel(string_schema, contract::TOPIC_ROBOT_DESCRIPTION, contract::MESSAGE_ENCODING, &channel_meta)
-        .map_err(&me)?;
-    let js_schema = w
-        .add_schema(
-            contract::SCHEMA_JOINT_STATE,
-            contract::SCHEMA_ENCODING,
-            contract::JOINT_STATE_DEFINITION.as_bytes(),
-        )
-        .map_err(&me)?;
-    let joints = w
-        .add_channel(js_schema, contract::TOPIC_JOINT_STATES, contract::MESSAGE_ENCODING, &channel_meta)
-        .map_err(&me)?;
+    let meta = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
+    w.add_channel(schema, topic, contract::MESSAGE_ENCODING, &meta).map_err(&me)
+}
+
+/// The metadata record a shard whose data-section CRC would be 0 gets, to change it.
+const NONZERO_CRC: &str = "dynforge_nonzero_crc";
+
+fn write_file(path: &Path, content: &ShardContent<'_>) -> Result<(), ShardError> {
+    let file = dynforge_proto::run_dir::create_temporary(path).map_err(io_err(path))?;
+    let me = mcap_err(path);
+    let mut w = ros2_writer(file, path)?;
+    let description =
+        channel(&mut w, path, contract::SCHEMA_STRING, contract::STRING_DEFINITION, contract::TOPIC_ROBOT_DESCRIPTION)?;
+    let joints = channel(
+        &mut w,
+        path,
+        contract::SCHEMA_JOINT_STATE,
+        contract::JOINT_STATE_DEFINITION,
+        contract::TOPIC_JOINT_STATES,
+    )?;
     let t0 = content.joint_states.first().map_or(0, |m| m.stamp_ns().max(0) as u64);
     let header = |channel_id, sequence, time| mcap::records::MessageHeader {
         channel_id,
@@ -135,25 +143,16 @@ pub fn write_joint_trajectory(
     dynforge_proto::run_dir::replace_atomically(
         path,
         |tmp| {
-            let file = std::fs::File::create(tmp).map_err(io_err(tmp))?;
+            let file = dynforge_proto::run_dir::create_temporary(tmp).map_err(io_err(tmp))?;
             let me = mcap_err(tmp);
-            let mut w = mcap::WriteOptions::new()
-                .profile(contract::PROFILE)
-                .library(contract::LIBRARY)
-                .compression(Some(mcap::Compression::Zstd))
-                .create(BufWriter::new(file))
-                .map_err(&me)?;
-            let meta = BTreeMap::from([("offered_qos_profiles".to_string(), String::new())]);
-            let schema = w
-                .add_schema(
-                    contract::SCHEMA_JOINT_TRAJECTORY,
-                    contract::SCHEMA_ENCODING,
-                    contract::JOINT_TRAJECTORY_DEFINITION.as_bytes(),
-                )
-                .map_err(&me)?;
-            let channel = w
-                .add_channel(schema, contract::TOPIC_JOINT_TRAJECTORY, contract::MESSAGE_ENCODING, &meta)
-                .map_err(&me)?;
+            let mut w = ros2_writer(file, tmp)?;
+            let channel = channel(
+                &mut w,
+                tmp,
+                contract::SCHEMA_JOINT_TRAJECTORY,
+                contract::JOINT_TRAJECTORY_DEFINITION,
+                contract::TOPIC_JOINT_TRAJECTORY,
+            )?;
             let header =
                 mcap::records::MessageHeader { channel_id: channel, sequence: 0, log_time: 0, publish_time: 0 };
             w.write_to_known_channel(&header, &contract::encode_joint_trajectory(names, points)).map_err(&me)?;
