@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{dynforge, dynforge_with_env};
+use common::{children_of, dynforge, dynforge_with_env};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -48,21 +48,6 @@ fn shard_hashes(dir: &Path) -> BTreeMap<String, u64> {
 
 fn ledger_entries(dir: &Path) -> Vec<ledger::Entry> {
     ledger::read(&dir.join("ledger.tsv")).unwrap()
-}
-
-/// Process ids whose parent is `pid`.
-fn children_of(pid: u32) -> Vec<u32> {
-    std::fs::read_dir("/proc")
-        .unwrap()
-        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
-        .filter(|p| {
-            std::fs::read_to_string(format!("/proc/{p}/stat"))
-                .ok()
-                .and_then(|s| s.rsplit_once(')').map(|(_, rest)| rest.split_whitespace().nth(1).map(str::to_string)))
-                .flatten()
-                .is_some_and(|ppid| ppid == pid.to_string())
-        })
-        .collect()
 }
 
 fn kill(pid: u32, signal: &str) {

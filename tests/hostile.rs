@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::dynforge;
+use common::{children_of, dynforge};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -198,7 +198,7 @@ fn replacement_workers_that_fail_at_start_end_the_run_with_their_error() {
     let mut broken = manifest.clone();
     broken.extend(b"garbage\n");
     std::fs::write(dir.join("manifest.toml"), &broken).unwrap();
-    for w in workers_of(child.id()) {
+    for w in children_of(child.id()) {
         let _ = Command::new("kill").args(["-9", &w.to_string()]).status();
     }
     let o = wait_bounded(child, Duration::from_secs(60));
@@ -210,22 +210,6 @@ fn replacement_workers_that_fail_at_start_end_the_run_with_their_error() {
     let o = bounded(&args, &[], Duration::from_secs(300));
     assert!(o.status.success(), "{}", stderr(&o));
     ok(&["verify", arg(&dir)]);
-}
-
-/// Process ids whose parent is `pid`.
-fn workers_of(pid: u32) -> Vec<u32> {
-    std::fs::read_dir("/proc")
-        .unwrap()
-        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
-        .filter(|p| {
-            std::fs::read_to_string(format!("/proc/{p}/stat"))
-                .ok()
-                .and_then(|s| {
-                    s.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(1).map(str::to_string))
-                })
-                .is_some_and(|ppid| ppid == pid.to_string())
-        })
-        .collect()
 }
 
 /// Item 15: the run's shared-memory files are its user's alone (iceoryx2 makes its management segment writable by
@@ -257,7 +241,7 @@ fn a_runs_shared_memory_is_writable_by_its_owner_only() {
     };
     let start = Instant::now();
     // Both workers joined: their jobs' services exist, the management segment too.
-    while !files().iter().any(|(n, _)| n.ends_with("global_mgmt")) || workers_of(child.id()).len() < 2 {
+    while !files().iter().any(|(n, _)| n.ends_with("global_mgmt")) || children_of(child.id()).len() < 2 {
         assert!(start.elapsed() < Duration::from_secs(60), "the run never started: {:?}", files());
         std::thread::sleep(Duration::from_millis(20));
     }
