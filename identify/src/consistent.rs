@@ -15,7 +15,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use crate::normal::NormalEquations;
-use crate::solve::{RANK_TOLERANCE, ZERO_COLUMN, pseudo_solve};
+use crate::solve::scaled_pseudo_solve;
 use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
@@ -137,12 +137,8 @@ pub fn data_start(
     let n = ne.dof();
     let data = Data::new(ne, weights);
     let pi0 = DVector::from_vec(parameters(n, &prior.mean));
-    let largest = data.g.diagonal().amax();
-    let scale = data.g.diagonal().map(|d| if d > ZERO_COLUMN * largest { 1.0 / d.sqrt() } else { 0.0 });
-    let scaled = DMatrix::from_fn(scale.len(), scale.len(), |r, c| scale[r] * data.g[(r, c)] * scale[c]);
-    let residual = (&data.rhs - &data.g * &pi0).component_mul(&scale);
-    let (step, _) = pseudo_solve(&scaled, &residual, RANK_TOLERANCE)?;
-    let pi = pi0 + step.component_mul(&scale);
+    let (step, _) = scaled_pseudo_solve(&data.g, &(&data.rhs - &data.g * &pi0))?;
+    let pi = pi0 + step;
     let mut x = prior.mean.clone();
     for l in 0..n {
         if let Some(theta) = standard::coordinates(&pi.as_slice()[NI * l..NI * (l + 1)]) {

@@ -1,6 +1,5 @@
 //! Linear least squares on the normal equations, restricted to the identifiable directions.
 
-use dynforge_proto::params::num_params;
 use faer::{Mat, Side};
 
 use nalgebra::{DMatrix, DVector};
@@ -15,7 +14,7 @@ pub const RANK_TOLERANCE: f64 = 1e-10;
 
 /// Squared column norms of the regressor below this fraction of the largest are rounding, not signal: a column
 /// `1e-10` of the largest in norm is beyond what double precision distinguishes after the normal equations.
-pub(crate) const ZERO_COLUMN: f64 = 1e-20;
+const ZERO_COLUMN: f64 = 1e-20;
 
 /// The classical estimate.
 #[derive(Debug, Clone)]
@@ -63,22 +62,28 @@ pub(crate) fn pseudo_solve(
     Ok((x, rank))
 }
 
+/// `x = A^+ b` over the identifiable directions of a normal matrix `A` (symmetric, positive semi-definite), in
+/// Jacobi-scaled coordinates (minimum norm there), with its numerical rank. The scaling gives parameters of
+/// different units (kg, kg m, kg m^2, N m) comparable columns. A column no torque depends on (e.g. link 2's mcy) is
+/// zero only up to rounding (1e-34 of the largest squared norm measured): scaled to unit norm, that rounding would
+/// pass for an identifiable direction, so columns under ZERO_COLUMN of the largest squared norm count as zero.
+pub(crate) fn scaled_pseudo_solve(a: &DMatrix<f64>, b: &DVector<f64>) -> Result<(DVector<f64>, usize), IdentifyError> {
+    let p = a.nrows();
+    let largest = (0..p).map(|i| a[(i, i)]).fold(0.0f64, f64::max);
+    let d = DVector::from_fn(p, |i, _| if a[(i, i)] > ZERO_COLUMN * largest { 1.0 / a[(i, i)].sqrt() } else { 0.0 });
+    let scaled = DMatrix::from_fn(p, p, |i, j| a[(i, j)] * d[i] * d[j]);
+    let (x, rank) = pseudo_solve(&scaled, &b.component_mul(&d), RANK_TOLERANCE)?;
+    Ok((x.component_mul(&d), rank))
+}
+
 /// Least squares on the regressor: the parameters that best predict the recorded torques.
 pub fn least_squares(ne: &NormalEquations) -> Result<LeastSquares, IdentifyError> {
     if ne.rows() == 0 {
         return Err(IdentifyError::NoData);
     }
     let (a, b, _) = ne.gram();
-    let p = num_params(ne.dof());
-    // Jacobi scaling: parameters of different units (kg, kg m, kg m^2, N m) get comparable columns. A column no
-    // torque depends on (e.g. link 2's mcy) is zero only up to rounding (1e-34 of the largest squared norm
-    // measured): scaled to unit norm, that rounding would pass for an identifiable direction, so columns under
-    // ZERO_COLUMN of the largest squared norm count as zero.
-    let largest = (0..p).map(|i| a[(i, i)]).fold(0.0f64, f64::max);
-    let d = DVector::from_fn(p, |i, _| if a[(i, i)] > ZERO_COLUMN * largest { 1.0 / a[(i, i)].sqrt() } else { 0.0 });
-    let scaled = DMatrix::from_fn(p, p, |i, j| a[(i, j)] * d[i] * d[j]);
-    let (x, rank) = pseudo_solve(&scaled, &b.component_mul(&d), RANK_TOLERANCE)?;
-    let pi: Vec<f64> = x.component_mul(&d).iter().copied().collect();
+    let (x, rank) = scaled_pseudo_solve(&a, &b)?;
+    let pi: Vec<f64> = x.iter().copied().collect();
     let sigma = (ne.rss(&pi) / (ne.rows().saturating_sub(rank)).max(1) as f64).sqrt();
     Ok(LeastSquares { pi, rank, sigma })
 }

@@ -33,8 +33,8 @@ use crate::consistent::{self, CoordinatePrior};
 use crate::normal::NormalEquations;
 use crate::rows::{RowSums, residuals};
 use crate::signals::{
-    Conditioning, EffortConvention, VelocityChoice, VelocitySource, choose_cutoff, choose_velocity, condition,
-    noise_gain, row_step,
+    Conditioned, Conditioning, EffortConvention, VelocityChoice, VelocitySource, choose_cutoff, choose_velocity,
+    condition, noise_gain, row_step,
 };
 use crate::solve::least_squares;
 
@@ -145,10 +145,9 @@ fn sum_rows(logs: &[Log], conditioning: &Conditioning) -> Result<(RowSums, Veloc
     let pad = settling(source, cutoff, first.dt);
     let step = row_step(source, cutoff, first.dt);
     let parts = dynforge_proto::parallel::map_in_order(&pieces, |(seg, range)| {
-        let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
-        let c = condition(&seg.slice(lo..hi), source, cutoff.unwrap_or(f64::MAX));
+        let (c, rows, lo) = condition_piece(seg, range, source, cutoff, pad);
         let mut sums = RowSums::new(first.model.dof());
-        sums.add(&first.model, &c, range.start - lo..range.end - lo, (step, lo)).map(|()| sums)
+        sums.add(&first.model, &c, rows, (step, lo)).map(|()| sums)
     });
     let mut sums = RowSums::new(first.model.dof());
     for part in parts {
@@ -160,6 +159,20 @@ fn sum_rows(logs: &[Log], conditioning: &Conditioning) -> Result<(RowSums, Veloc
 /// Samples of a segment conditioned and summed as one piece, on one core: fixed, so the sums (and their rounding)
 /// do not depend on the number of cores; each piece is conditioned with [`settling`] samples more on either side.
 const PIECE: usize = 1 << 15;
+
+/// The samples `range` of `seg` conditioned with `pad` samples more on either side (where the segment has them):
+/// the conditioned stretch, `range` within it, and the stretch's first sample in `seg`.
+fn condition_piece(
+    seg: &JointTrajectory,
+    range: &std::ops::Range<usize>,
+    source: VelocitySource,
+    cutoff: Option<f64>,
+    pad: usize,
+) -> (Conditioned, std::ops::Range<usize>, usize) {
+    let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
+    let c = condition(&seg.slice(lo..hi), source, cutoff.unwrap_or(f64::MAX));
+    (c, range.start - lo..range.end - lo, lo)
+}
 
 /// Samples the low-pass filter needs to settle (four time constants of the cut-off) before a piece's rows are
 /// taken as the whole segment's filtering would give them (to ~1e-7 of the signal).
@@ -212,13 +225,11 @@ fn residual_noise(
     convention: EffortConvention,
 ) -> Vec<Correlation> {
     let n = calibrated.dof();
-    let cutoff = velocity.cutoff.unwrap_or(f64::MAX);
     let pad = settling(velocity.source, velocity.cutoff, logs[0].dt);
     let blocks = noise_blocks(logs);
     let series: Vec<Vec<Vec<Option<f64>>>> = dynforge_proto::parallel::map_in_order(&blocks, |(seg, range)| {
-        let (lo, hi) = (range.start.saturating_sub(pad), (range.end + pad).min(seg.len()));
-        let c = condition(&seg.slice(lo..hi), velocity.source, cutoff);
-        residuals(calibrated, &c, range.start - lo..range.end - lo, convention)
+        let (c, rows, _) = condition_piece(seg, range, velocity.source, velocity.cutoff, pad);
+        residuals(calibrated, &c, rows, convention)
     });
     dynforge_proto::parallel::map_in_order(&(0..n).collect::<Vec<_>>(), |&j| {
         correlation(&series.iter().map(|b| b[j].as_slice()).collect::<Vec<_>>(), velocity.step)
