@@ -14,8 +14,10 @@ use crate::{Design, ExciteError, Options};
 
 const INERTIAL_NAMES: [&str; NI] = ["mass", "mx", "my", "mz", "ixx", "ixy", "iyy", "ixz", "iyz", "izz"];
 
+/// Written whole or not at all (the run directories' rule): a rerun interrupted midway leaves the previous files.
 fn write(path: &Path, text: &str) -> Result<(), ExciteError> {
-    std::fs::write(path, text).map_err(|source| ExciteError::Write { file: path.display().to_string(), source })
+    dynforge_proto::run_dir::write_atomic(path, text.as_bytes())
+        .map_err(|source| ExciteError::Write { file: path.display().to_string(), source })
 }
 
 /// Writes `excitation-K.csv`, `excitation-K.mcap` (a `trajectory_msgs/msg/JointTrajectory`) and `excitation-K.json`
