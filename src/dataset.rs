@@ -9,13 +9,13 @@ use dynforge_coordinator::prune::prune;
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::prepare::{ModelKind, prepare};
 use dynforge_dataset::window::WindowSpec;
-use dynforge_dataset::windows::stats;
+use dynforge_dataset::windows::{AROUND_THE_BEST, stats};
 
 use std::sync::atomic::Ordering;
 
 use dynforge_trainer::training::session::SessionObserver;
 
-use crate::progress::{Bars, STOP, catch_interrupts};
+use dynforge_display::{Bars, STOP, catch_interrupts};
 
 #[derive(Subcommand)]
 pub enum DatasetCommand {
@@ -97,12 +97,9 @@ pub fn run(cmd: DatasetCommand) -> Result<()> {
         DatasetCommand::Stats(args) => args,
         DatasetCommand::Prepare(args) => return prepare_cache(args),
     };
-    let specs: Vec<WindowSpec> = if args.windows.is_empty() {
-        [(32, 64, 16), (64, 32, 16), (64, 64, 16), (64, 64, 8), (128, 64, 16)]
-            .map(|(len, stride, ssr)| WindowSpec { len, stride, ssr })
-            .to_vec()
-    } else {
-        args.windows
+    let specs = match args.windows.is_empty() {
+        true => AROUND_THE_BEST.to_vec(),
+        false => args.windows,
     };
     let s = stats(&args.dir, &specs)?;
     print!("{}: {}", args.dir.display(), s.report(&specs));

@@ -9,7 +9,7 @@ use dynforge_trainer::checkpoint::Checkpoint;
 use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::training::session::Inputs;
 
-use crate::progress::bar;
+use dynforge_display::bar;
 
 /// How many validation recordings and robots the torque and identification checks take by default.
 pub const TORQUE_RECORDINGS: usize = 64;

@@ -4,7 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use dynforge_excite::{Options, design_with, write::write_design};
+use dynforge_excite::write::{summary, write_design};
+use dynforge_excite::{Options, design_with};
+use dynforge_proto::flags::{positive, weld, whole};
 use dynforge_robot::urdf;
 
 #[derive(Args)]
@@ -16,13 +18,13 @@ pub struct ExciteArgs {
     #[arg(long)]
     out: PathBuf,
     /// Duration of each trajectory [s].
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, value_parser = positive)]
     duration: f64,
     /// Number of trajectories (designed together: each excites what the others leave weak).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = whole::<usize>(1, 64))]
     count: usize,
     /// Harmonics per joint (the highest frequency is harmonics / duration).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = whole::<usize>(1, 100))]
     harmonics: usize,
     /// Acceleration limit [rad/s^2 or m/s^2]: one for every joint, or one per joint separated by commas.
     #[arg(long, value_delimiter = ',', default_value = "5")]
@@ -31,23 +33,23 @@ pub struct ExciteArgs {
     #[arg(long, value_delimiter = ',')]
     start: Option<Vec<f64>>,
     /// Share of the URDF's velocity limits the motion may use.
-    #[arg(long, default_value_t = 0.8)]
+    #[arg(long, default_value_t = 0.8, value_parser = positive)]
     velocity_share: f64,
     /// Share of the URDF's effort limits the motion may need (computed with the URDF's own parameters).
-    #[arg(long, default_value_t = 0.8)]
+    #[arg(long, default_value_t = 0.8, value_parser = positive)]
     effort_share: f64,
     /// Candidates judged per trajectory (the design's time grows with it).
-    #[arg(long, default_value_t = 1500)]
+    #[arg(long, default_value_t = 1500, value_parser = whole::<usize>(1, 10_000_000))]
     evaluations: usize,
     /// Rate of the written CSV [Hz].
-    #[arg(long, default_value_t = 500.0)]
+    #[arg(long, default_value_t = 500.0, value_parser = positive)]
     rate: f64,
     /// Torque noise [N m] the report's expected standard deviations assume.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = positive)]
     noise: f64,
     /// Weld this joint (a gripper's, say) at a position: NAME or NAME=POSITION (default 0); repeatable.
-    #[arg(long, value_name = "JOINT[=POSITION]")]
-    fix: Vec<String>,
+    #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
+    fix: Vec<(String, f64)>,
     /// Seed of the search (the same seed, the same trajectories).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -55,16 +57,7 @@ pub struct ExciteArgs {
 
 pub fn run(args: ExciteArgs) -> Result<()> {
     let text = std::fs::read_to_string(&args.urdf).with_context(|| format!("reading {}", args.urdf.display()))?;
-    let mut welds = urdf::Welds::new();
-    for f in &args.fix {
-        let (name, at) = match f.split_once('=') {
-            Some((name, at)) => {
-                (name, at.parse::<f64>().with_context(|| format!("--fix {f}: the position is not a number"))?)
-            }
-            None => (f.as_str(), 0.0),
-        };
-        welds.insert(name.to_string(), at);
-    }
+    let welds: urdf::Welds = args.fix.into_iter().collect();
     let model = urdf::parse_welded(&text, &args.urdf.display().to_string(), &welds)?;
     let options = Options {
         duration: args.duration,
@@ -78,7 +71,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
         seed: args.seed,
         ..Options::default()
     };
-    let bar = crate::progress::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
+    let bar = dynforge_display::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
     bar.set_message(format!("designing {} excitations of {}", options.count, model.name()));
     let design = design_with(&model, &options, |done, total| {
         bar.set_length(total as u64);
@@ -87,21 +80,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
     .with_context(|| format!("designing excitations for {}", args.urdf.display()))?;
     bar.finish_and_clear();
     let files = write_design(&args.out, &model, &design, &options, args.rate, args.noise)?;
-    let (d, r) = (&design.together, &design.random_together);
-    println!(
-        "{} trajectories of {} s for {} ({} of {} parameter combinations identifiable)",
-        options.count,
-        options.duration,
-        model.name(),
-        design.base.rank(),
-        design.scales.len()
-    );
-    println!(
-        "condition number {:.3e} (random multi-sines within the same limits: {:.3e}); base covariance {:.1}x smaller",
-        d.condition,
-        r.condition,
-        r.trace / d.trace
-    );
+    print!("{}", summary(&model, &design, &options));
     for f in files {
         println!("wrote {}", f.display());
     }

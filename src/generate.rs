@@ -1,18 +1,17 @@
 //! `dynforge generate | status | verify | worker`: datasets made by a coordinator and worker processes.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use dynforge_coordinator::run::{self, GenerateConfig, Observer, Progress};
+use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
+use dynforge_display::GenerationDisplay;
 use dynforge_proto::flags::{MAX_ROBOTS, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_robot::generator::GeneratorConfig;
-use indicatif::{MultiProgress, ProgressBar, ProgressStyle};
 
 #[derive(Args)]
 pub struct GenerateArgs {
@@ -82,79 +81,6 @@ pub struct WorkerArgs {
     slot: usize,
 }
 
-/// Progress in the terminal: a bar plus a line per worker on a TTY, periodic log lines otherwise.
-struct Display {
-    bars: Option<(MultiProgress, ProgressBar, Vec<ProgressBar>)>,
-    last_log: Instant,
-}
-
-impl Display {
-    fn new() -> Self {
-        Display { bars: None, last_log: Instant::now() }
-    }
-}
-
-impl Observer for Display {
-    fn update(&mut self, p: &Progress) {
-        if !std::io::stderr().is_terminal() {
-            if self.last_log.elapsed() >= Duration::from_secs(5) || p.finished() == p.total {
-                self.last_log = Instant::now();
-                eprintln!("[{}/{}] {}", p.finished(), p.total, p);
-            }
-            return;
-        }
-        let (multi, main, workers) = self.bars.get_or_insert_with(|| {
-            let multi = MultiProgress::new();
-            let main = multi.add(ProgressBar::new(p.total));
-            // wide_msg: cut to the terminal's width instead of wrapping.
-            main.set_style(
-                ProgressStyle::with_template("{bar:40} {pos}/{len} jobs, ETA {eta} | {wide_msg}")
-                    .expect("valid template"),
-            );
-            // Jobs an earlier run finished are not progress of this one: the ETA starts from them.
-            main.set_position(p.resumed);
-            main.reset_eta();
-            (multi, main, Vec::new())
-        });
-        main.set_length(p.total);
-        main.set_position(p.finished());
-        main.set_message(p.to_string());
-        while workers.len() < p.slots.len() {
-            let spinner = multi.add(ProgressBar::new_spinner());
-            spinner.enable_steady_tick(Duration::from_millis(200));
-            workers.push(spinner);
-        }
-        for (k, (bar, job)) in workers.iter().zip(&p.slots).enumerate() {
-            bar.set_message(match job {
-                Some(j) => format!("worker {k}: robot {} trajectory {}", j.robot, j.trajectory),
-                None => format!("worker {k}: idle"),
-            });
-        }
-    }
-
-    fn message(&mut self, text: &str) {
-        match &self.bars {
-            Some((multi, ..)) => {
-                let _ = multi.println(text);
-            }
-            None => eprintln!("{text}"),
-        }
-    }
-}
-
-impl Drop for Display {
-    fn drop(&mut self) {
-        if let Some((_, main, workers)) = &self.bars {
-            for w in workers {
-                w.finish_and_clear();
-            }
-            // Where the run stopped (an interrupted run is not N/N), on a line of its own.
-            main.abandon();
-            eprintln!();
-        }
-    }
-}
-
 pub fn generate(args: GenerateArgs) -> Result<()> {
     let generator = GeneratorConfig::load(args.config.as_deref())?;
     let engine = args.engine;
@@ -187,7 +113,7 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         args.out.display()
     );
     let start = Instant::now();
-    let mut display = Display::new();
+    let mut display = GenerationDisplay::default();
     let progress = run::generate(&cfg, &mut display)?;
     drop(display);
     let wall = start.elapsed().as_secs_f64();
@@ -210,7 +136,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
 }
 
 pub fn verify(args: VerifyArgs) -> Result<()> {
-    let bar = crate::progress::bar("{bar:40} {pos}/{len}");
+    let bar = dynforge_display::bar("{bar:40} {pos}/{len}");
     let report = verify::verify(&args.dir, |k, n| {
         bar.set_length(n as u64);
         bar.set_position(k as u64);
@@ -229,7 +155,7 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
 }
 
 pub fn merge(args: MergeArgs) -> Result<()> {
-    let bar = crate::progress::bar("{bar:40} {pos}/{len}");
+    let bar = dynforge_display::bar("{bar:40} {pos}/{len}");
     let merged = dynforge_coordinator::merge::merge(&args.parts, &args.out, |k, n| {
         bar.set_length(n as u64);
         bar.set_position(k as u64);

@@ -2,14 +2,11 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use dynforge_identify::calibrate::{Options, held_out, nominal};
-use dynforge_identify::identify_logs;
+use dynforge_identify::calibrate::{Options, calibrate_to_urdf};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
-use dynforge_proto::run_dir::write_atomic;
-use dynforge_robot::parameters::dynamic_parameters;
-use dynforge_robot::urdf;
+use dynforge_proto::flags::positive;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
@@ -22,7 +19,7 @@ pub struct IdentifyArgs {
     /// How far the URDF's values are trusted, relative: masses and inertias within ~this share, centres of mass
     /// within this share of their offset or of the link's radius of gyration, friction within this share or 2 % of
     /// the joint's effort limit.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, value_parser = positive)]
     spread: f64,
     /// What the logged effort is: the torque held until the next sample (zero-order hold, a commanded torque), or
     /// the torque sampled at its stamp (a measured one). Auto: the one that fits the logs better.
@@ -33,7 +30,7 @@ pub struct IdentifyArgs {
     #[arg(long, value_enum, default_value_t = Velocity::Auto)]
     velocity: Velocity,
     /// Low-pass cut-off [Hz] for velocities from positions (default: chosen from the positions' noise).
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     cutoff: Option<f64>,
     /// Weld this joint at its mean logged position (a joint the logs do not move, e.g. a gripper's); repeatable.
     #[arg(long, value_name = "JOINT")]
@@ -65,15 +62,7 @@ enum Velocity {
 }
 
 pub fn run(args: IdentifyArgs) -> Result<()> {
-    if !(args.spread > 0.0 && args.spread.is_finite()) {
-        bail!("--spread {} is not a positive number", args.spread);
-    }
-    if let Some(fc) = args.cutoff.filter(|fc| !(*fc > 0.0 && fc.is_finite())) {
-        bail!("--cutoff {fc} is not a positive frequency");
-    }
     let out = args.out.clone().unwrap_or_else(|| args.logs[0].with_extension("calibrated.urdf"));
-    let inputs: Vec<PathBuf> = args.logs.iter().chain(&args.holdout).chain(&args.urdf).cloned().collect();
-    dynforge_recording::check_not_an_input(&out, &inputs)?;
     let given = match &args.urdf {
         Some(path) => Some((
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?,
@@ -99,38 +88,10 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         },
         fixed: args.fix.clone(),
     };
-    let (mut id, logs) = identify_logs(&args.logs, document, &options)?;
-    let log = &logs[0];
-    let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
-    id.notes.extend(notes);
-    write_atomic(&out, text.as_bytes()).with_context(|| format!("writing {}", out.display()))?;
-    // What is reported is what the file holds: the written URDF read back.
-    let written = urdf::parse_welded(&text, &out.display().to_string(), &log.welds)?;
-    id.report_values_of(&written);
-    let holdout = match args.holdout.is_empty() {
-        true => None,
-        false => {
-            let ne = held_out(&args.holdout, document, &options, &id)?;
-            Some((ne.mean_nrmse(&nominal(&log.model)), ne.mean_nrmse(&dynamic_parameters(&written))))
-        }
-    };
-    if args.json {
-        let mut v = serde_json::to_value(&id)?;
-        v["urdf"] = serde_json::json!(out);
-        if let Some((urdf, calibrated)) = holdout {
-            v["held_out"] =
-                serde_json::json!({"logs": args.holdout, "nrmse_urdf": urdf, "nrmse_calibrated": calibrated});
-        }
-        println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+    let calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.holdout, &out)?;
+    match args.json {
+        true => println!("{}", serde_json::to_string_pretty(&calibrated.json()?)?),
+        false => print!("{calibrated}"),
     }
-    print!("{id}");
-    if let Some((urdf, calibrated)) = holdout {
-        println!(
-            "torque NRMSE on {} held-out log(s): calibrated {calibrated:.4}, URDF as given {urdf:.4}",
-            args.holdout.len()
-        );
-    }
-    println!("calibrated URDF: {}", out.display());
     Ok(())
 }

@@ -7,7 +7,6 @@ mod excite;
 mod generate;
 mod identify;
 mod pipeline;
-mod progress;
 mod robot;
 mod simulate;
 mod sweep;

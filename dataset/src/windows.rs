@@ -86,6 +86,15 @@ impl Stats {
     }
 }
 
+/// The window geometries `dataset stats` counts by default: the paper's grid around its best (64:64:16).
+pub const AROUND_THE_BEST: [WindowSpec; 5] = [
+    WindowSpec { len: 32, stride: 64, ssr: 16 },
+    WindowSpec { len: 64, stride: 32, ssr: 16 },
+    WindowSpec { len: 64, stride: 64, ssr: 16 },
+    WindowSpec { len: 64, stride: 64, ssr: 8 },
+    WindowSpec { len: 128, stride: 64, ssr: 16 },
+];
+
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
 pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, ReadError> {
     let paths = match dir.is_file() {

@@ -79,6 +79,23 @@ pub fn write_design(
     Ok(files)
 }
 
+/// Two lines for the terminal: what was designed and what it is worth beside random multi-sines.
+pub fn summary(model: &Model, design: &Design, options: &Options) -> String {
+    let (d, r) = (&design.together, &design.random_together);
+    format!(
+        "{} trajectories of {} s for {} ({} of {} parameter combinations identifiable)\n\
+         condition number {:.3e} (random multi-sines within the same limits: {:.3e}); base covariance {:.1}x smaller\n",
+        options.count,
+        options.duration,
+        model.name(),
+        design.base.rank(),
+        design.scales.len(),
+        d.condition,
+        r.condition,
+        r.trace / d.trace
+    )
+}
+
 /// The report: how the design was asked for, its quality beside the random multi-sines it started from, the peaks
 /// it reaches, and per parameter the standard deviation least squares would give at torque noise `noise`.
 pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> String {

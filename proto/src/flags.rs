@@ -7,13 +7,24 @@
 /// would write petabytes.
 pub const MAX_ROBOTS: u64 = 100_000_000;
 
+/// A flag's value refused, saying what the flag takes.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct FlagError(String);
+
+impl From<&str> for FlagError {
+    fn from(what: &str) -> Self {
+        FlagError(what.to_string())
+    }
+}
+
 /// A parser of whole numbers from `lo` to `hi`.
-pub fn whole<T>(lo: u64, hi: u64) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
+pub fn whole<T>(lo: u64, hi: u64) -> impl Fn(&str) -> Result<T, FlagError> + Clone + Send + Sync + 'static
 where
     T: TryFrom<u64>,
 {
     move |s: &str| {
-        let refuse = || format!("expected a whole number from {lo} to {hi}");
+        let refuse = || FlagError(format!("expected a whole number from {lo} to {hi}"));
         let v: u64 = s.trim().parse().map_err(|_| refuse())?;
         if !(lo..=hi).contains(&v) {
             return Err(refuse());
@@ -23,10 +34,21 @@ where
 }
 
 /// A finite number above 0.
-pub fn positive(s: &str) -> Result<f64, String> {
+pub fn positive(s: &str) -> Result<f64, FlagError> {
     match s.trim().parse::<f64>() {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
         _ => Err("expected a positive finite number".into()),
+    }
+}
+
+/// A joint to weld, `NAME` or `NAME=POSITION` (the position defaults to 0).
+pub fn weld(s: &str) -> Result<(String, f64), FlagError> {
+    match s.split_once('=') {
+        None => Ok((s.to_string(), 0.0)),
+        Some((name, at)) => match at.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok((name.to_string(), v)),
+            _ => Err(FlagError(format!("expected NAME or NAME=POSITION, and '{at}' is not a finite number"))),
+        },
     }
 }
 
@@ -46,5 +68,8 @@ mod tests {
         for bad in ["nan", "inf", "-1", "0", "x"] {
             assert!(positive(bad).is_err(), "{bad}");
         }
+        assert_eq!(weld("finger"), Ok(("finger".into(), 0.0)));
+        assert_eq!(weld("finger=0.02"), Ok(("finger".into(), 0.02)));
+        assert!(weld("finger=nan").is_err() && weld("finger=").is_err());
     }
 }

@@ -13,9 +13,11 @@
 
 mod readiness;
 mod report;
+mod written;
 
 pub use readiness::{Readiness, TESTED_RATES};
 pub use report::{Decided, Estimated, Identification, JointEstimate, LinkEstimate};
+pub use written::{Calibrated, HeldOut, calibrate_to_urdf};
 
 use std::path::PathBuf;
 
@@ -61,6 +63,10 @@ pub enum CalibrateError {
     NoLogs,
     #[error(transparent)]
     Read(#[from] ReadError),
+    #[error(transparent)]
+    Model(#[from] dynforge_robot::ModelError),
+    #[error("writing {file}: {source}")]
+    Write { file: String, source: std::io::Error },
     #[error("{file}: {source}")]
     Identify { file: String, source: IdentifyError },
     #[error(

@@ -1,28 +1,11 @@
-//! Progress in the terminal for the trainer's commands, and the stop flag that Ctrl-C / SIGTERM set.
+//! The trainer's commands in a terminal: a bar for preprocessing and for the batches of an epoch, a line per epoch.
 
 use std::io::IsTerminal;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use dynforge_trainer::training::session::SessionObserver;
 use dynforge_trainer::training::{EpochMetrics, TrainObserver};
 use indicatif::{ProgressBar, ProgressStyle};
-
-/// Set by SIGINT/SIGTERM: training checkpoints and stops at the next step.
-pub static STOP: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_signal(_: libc::c_int) {
-    STOP.store(true, Ordering::Relaxed);
-}
-
-/// From now on Ctrl-C and SIGTERM set [`STOP`] instead of killing the process.
-pub fn catch_interrupts() {
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
-    unsafe {
-        libc::signal(libc::SIGINT, on_signal as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_signal as *const () as libc::sighandler_t);
-    }
-}
 
 /// A progress bar on standard error, hidden when it is not a terminal.
 pub fn bar(template: &str) -> ProgressBar {

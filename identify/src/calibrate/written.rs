@@ -1,0 +1,91 @@
+//! A calibration carried to its file: the URDF patched, written whole or not at all, read back, and the report made
+//! of what the file holds, so that what is printed is what is written to the last digit.
+
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::run_dir::write_atomic;
+use dynforge_recording::check_not_an_input;
+use dynforge_robot::parameters::dynamic_parameters;
+use dynforge_robot::urdf;
+
+use super::{CalibrateError, Identification, Options, held_out, identify_logs, nominal};
+
+/// The torque error of the URDF as given and of the calibrated one on logs the calibration did not see.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct HeldOut {
+    pub logs: Vec<PathBuf>,
+    /// Mean over joints of the torque RMSE over the torque's spread, with the URDF as given.
+    pub nrmse_urdf: f64,
+    /// The same with the calibrated URDF.
+    pub nrmse_calibrated: f64,
+}
+
+/// A calibration written to a URDF.
+#[derive(Debug, Clone)]
+pub struct Calibrated {
+    /// As the written URDF holds it.
+    pub id: Identification,
+    pub urdf: PathBuf,
+    pub held_out: Option<HeldOut>,
+}
+
+/// Calibrates `document` (text, source; default: the first log's `/robot_description`) to `logs`, writes the
+/// calibrated URDF to `out` (atomically; never over an input), and compares both URDFs on `holdout` if any.
+pub fn calibrate_to_urdf(
+    logs: &[PathBuf],
+    document: Option<(&str, &str)>,
+    options: &Options,
+    holdout: &[PathBuf],
+    out: &Path,
+) -> Result<Calibrated, CalibrateError> {
+    let inputs: Vec<PathBuf> = logs.iter().chain(holdout).cloned().chain(document.map(|(_, s)| s.into())).collect();
+    check_not_an_input(out, &inputs)?;
+    let (mut id, read) = identify_logs(logs, document, options)?;
+    let log = &read[0];
+    let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
+    id.notes.extend(notes);
+    write_atomic(out, text.as_bytes())
+        .map_err(|source| CalibrateError::Write { file: out.display().to_string(), source })?;
+    let written = urdf::parse_welded(&text, &out.display().to_string(), &log.welds)?;
+    id.report_values_of(&written);
+    let held_out = match holdout.is_empty() {
+        true => None,
+        false => {
+            let ne = held_out(holdout, document, options, &id)?;
+            Some(HeldOut {
+                logs: holdout.to_vec(),
+                nrmse_urdf: ne.mean_nrmse(&nominal(&log.model)),
+                nrmse_calibrated: ne.mean_nrmse(&dynamic_parameters(&written)),
+            })
+        }
+    };
+    Ok(Calibrated { id, urdf: out.to_path_buf(), held_out })
+}
+
+impl Calibrated {
+    /// The identification as JSON, with the written file and the held-out comparison.
+    pub fn json(&self) -> serde_json::Result<serde_json::Value> {
+        let mut v = serde_json::to_value(&self.id)?;
+        v["urdf"] = serde_json::json!(self.urdf);
+        if let Some(h) = &self.held_out {
+            v["held_out"] = serde_json::json!(h);
+        }
+        Ok(v)
+    }
+}
+
+impl std::fmt::Display for Calibrated {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.id)?;
+        if let Some(h) = &self.held_out {
+            writeln!(
+                f,
+                "torque NRMSE on {} held-out log(s): calibrated {:.4}, URDF as given {:.4}",
+                h.logs.len(),
+                h.nrmse_calibrated,
+                h.nrmse_urdf
+            )?;
+        }
+        writeln!(f, "calibrated URDF: {}", self.urdf.display())
+    }
+}
