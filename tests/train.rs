@@ -433,3 +433,64 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     let o = dynforge(&bare);
     assert!(!o.status.success() && stderr(&o).contains("manifest"), "{}", stderr(&o));
 }
+
+/// `--split`: what validation holds out is what was asked, recorded in the checkpoint and named by the report; the
+/// held-out recordings are the ones the rule picks from the shards' names; the checks that need unseen robots are
+/// left out, and said to be, under a split that has none.
+#[test]
+fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
+    use dynforge_dataset::split::{HoldOut, Origin, Split, SplitRule};
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let d = data.to_str().unwrap();
+    ok(dynforge(&["generate", "--out", d, "--robots", "6", "--trajectories", "3", "--workers", "2", "--seed", "7"]));
+    let shards: Vec<(u64, u32)> = std::fs::read_dir(data.join("shards"))
+        .unwrap()
+        .map(|e| {
+            let name = e.unwrap().file_name().into_string().unwrap();
+            let robot = dynforge_proto::shard::robot_of_file_name(&name).unwrap();
+            (robot, name[9..11].parse().unwrap())
+        })
+        .collect();
+    let mut validation_robots = Vec::new();
+    for by in [HoldOut::Robots, HoldOut::Trajectories, HoldOut::Windows] {
+        let run = dir.path().join(by.name());
+        let mut args = vec!["train", d, "--out", run.to_str().unwrap(), "--split", by.name()];
+        args.extend(["--epochs", "1", "--generated", "1024", "--dim", "32", "--validation", "0.34"]);
+        ok(dynforge(&args));
+        let ck: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
+        assert_eq!(ck["held_out"], by.name());
+        ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2", "--identify-robots", "1"]));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+        let markdown = std::fs::read_to_string(run.join("report.md")).unwrap();
+        assert_eq!(report["held_out"], by.name());
+        assert!(markdown.contains(&format!("34 % of the {} held out (seed 0)", by.name())), "{markdown}");
+        let rule = SplitRule { by, seed: 0, fraction: 0.34 };
+        let whole = |&(robot, trajectory): &(u64, u32)| rule.side(Origin { robot, trajectory, window: 0 });
+        let held: Vec<&(u64, u32)> = shards.iter().filter(|s| whole(s) == Split::Validation).collect();
+        let recordings = report["recordings"]["count"].as_u64().unwrap() as usize;
+        let robots = report["robots"]["count"].as_u64().unwrap() as usize;
+        match by {
+            HoldOut::Robots | HoldOut::Trajectories => {
+                assert_eq!(recordings, held.len(), "{by:?}: the recordings the rule holds out");
+                let mut r: Vec<u64> = held.iter().map(|s| s.0).collect();
+                r.sort();
+                r.dedup();
+                assert_eq!(robots, r.len(), "{by:?}");
+            }
+            // A recording is validation data when any of its windows is: some, not all.
+            HoldOut::Windows => assert!(recordings > 0 && recordings < shards.len(), "{report}"),
+        }
+        validation_robots.push(robots);
+        let checked = !report["torque"].is_null() && !report["identification"].is_null();
+        assert_eq!(checked, by == HoldOut::Robots, "{by:?}: the checks need robots never trained on");
+        assert_eq!(markdown.contains("none under this split"), by != HoldOut::Robots);
+    }
+    // Trajectories and windows put validation data on robots the training also sees: more robots than whole ones.
+    assert!(
+        validation_robots[1] > validation_robots[0] && validation_robots[2] > validation_robots[0],
+        "{validation_robots:?}"
+    );
+}

@@ -7,7 +7,7 @@
 use dynforge_proto::NUM_LABELS;
 
 use crate::cache::windows::CachedWindows;
-use crate::split::{Split, split_of};
+use crate::split::{Split, SplitRule};
 
 /// Per-column and per-label mean and standard deviation, and the kept columns.
 #[derive(Debug, Clone, PartialEq)]
@@ -20,9 +20,10 @@ pub struct Standardizer {
     pub label_std: [f64; NUM_LABELS],
 }
 
-/// Window indices of each side of the robot-level split.
-pub fn split_windows(w: &CachedWindows, seed: u64, validation_fraction: f64) -> (Vec<usize>, Vec<usize>) {
-    (0..w.count()).partition(|&i| split_of(seed, w.robots[i], validation_fraction) == Split::Train)
+/// Window indices of each side of the split `rule`.
+pub fn split_windows(w: &CachedWindows, rule: &SplitRule) -> (Vec<usize>, Vec<usize>) {
+    let origins = w.origins();
+    (0..w.count()).partition(|&i| rule.side(origins[i]) == Split::Train)
 }
 
 fn mean_std(sum: f64, sum2: f64, n: f64) -> (f64, f64) {
@@ -167,6 +168,7 @@ mod tests {
             data,
             labels: (0..4).map(|i| [i as f64; NUM_LABELS]).collect(),
             robots: vec![10, 11, 12, 13],
+            trajectories: vec![0; 4],
             hit: false,
         }
     }
@@ -198,7 +200,7 @@ mod tests {
         let mut w = windows();
         w.robots = (0..4).map(|i| i / 2).collect(); // two windows per robot
         for seed in 0..20 {
-            let (train, val) = split_windows(&w, seed, 0.5);
+            let (train, val) = split_windows(&w, &SplitRule::robots(seed, 0.5));
             assert_eq!(train.len() + val.len(), 4);
             for &t in &train {
                 assert!(val.iter().all(|&v| w.robots[v] != w.robots[t]), "seed {seed}");

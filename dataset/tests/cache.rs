@@ -109,14 +109,7 @@ fn shards_read_on_all_cores_join_in_path_order() {
     let features = JacobianFeatures::new(&robot.unwrap().model);
     let paths = dynforge_recording::dataset::list_shards(dir.path()).unwrap();
     assert_eq!(paths.len(), 6);
-    let empty = || CachedWindows {
-        spec: WindowSpec::default(),
-        width: 0,
-        data: Vec::new(),
-        labels: Vec::new(),
-        robots: Vec::new(),
-        hit: false,
-    };
+    let empty = || CachedWindows::new(WindowSpec::default());
     let mut together = empty();
     let added = together.add_shards(&paths, &features);
     let mut one_by_one = empty();

@@ -41,6 +41,14 @@ pub fn positive(s: &str) -> Result<f64, FlagError> {
     }
 }
 
+/// A share strictly between 0 and 1 (a validation split: both sides must have something).
+pub fn share(s: &str) -> Result<f64, FlagError> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v > 0.0 && v < 1.0 => Ok(v),
+        _ => Err("expected a number between 0 and 1 (exclusive)".into()),
+    }
+}
+
 /// A joint to weld, `NAME` or `NAME=POSITION` (the position defaults to 0).
 pub fn weld(s: &str) -> Result<(String, f64), FlagError> {
     match s.split_once('=') {
@@ -67,6 +75,10 @@ mod tests {
         assert_eq!(positive("5e-4"), Ok(5e-4));
         for bad in ["nan", "inf", "-1", "0", "x"] {
             assert!(positive(bad).is_err(), "{bad}");
+        }
+        assert_eq!(share("0.2"), Ok(0.2));
+        for bad in ["0", "1", "nan", "-0.1", "x"] {
+            assert!(share(bad).is_err(), "{bad}");
         }
         assert_eq!(weld("finger"), Ok(("finger".into(), 0.0)));
         assert_eq!(weld("finger=0.02"), Ok(("finger".into(), 0.02)));

@@ -36,6 +36,9 @@ pub struct Recording {
     pub labels: Option<[f64; NUM_LABELS]>,
     /// Robot id within its dataset (shards only).
     pub robot: Option<u64>,
+    /// Which of its robot's trajectories this is (shards only): with the robot, what names a recording in a split
+    /// that holds out trajectories or windows.
+    pub trajectory_index: Option<u32>,
 }
 
 /// The MCAP files of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`,
@@ -180,8 +183,10 @@ fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Re
         }
         None => None,
     };
-    let robot = bag.metadata.get(META_JOB).and_then(|m| m.get("robot")).and_then(|r| r.parse().ok());
-    Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot })
+    let job = |key: &str| bag.metadata.get(META_JOB).and_then(|m| m.get(key));
+    let robot = job("robot").and_then(|r| r.parse().ok());
+    let trajectory_index = job("trajectory").and_then(|t| t.parse().ok());
+    Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot, trajectory_index })
 }
 
 /// A jump in a recording's stamps: more than [`GAP_PERIODS`] times its median sampling period.

@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 use dynforge_dataset::examples::ExampleRecord;
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::Standardizer;
+use dynforge_dataset::split::{HoldOut, SplitRule};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_identify::ParameterPrior;
 use dynforge_robot::Model;
@@ -141,8 +142,11 @@ pub struct Checkpoint {
     pub labels: Vec<String>,
     pub label_mean: Vec<f64>,
     pub label_std: Vec<f64>,
-    /// The dataset trained on and its robot-level split (so evaluation sees the same validation robots).
+    /// The dataset trained on and its split (so evaluation sees the same validation data): what it holds out
+    /// (robots for checkpoints from before splits were chosen), its seed and share.
     pub dataset: String,
+    #[serde(default)]
+    pub held_out: HoldOut,
     pub split_seed: u64,
     pub validation_fraction: f64,
     /// Epoch the weights come from, and its validation loss (none before the first epoch ends).
@@ -193,11 +197,22 @@ impl Checkpoint {
             label_mean: s.label_mean.to_vec(),
             label_std: s.label_std.to_vec(),
             dataset: String::new(),
+            held_out: HoldOut::Robots,
             split_seed: 0,
             validation_fraction: 0.0,
             epoch: 0,
             validation_loss: None,
         }
+    }
+
+    /// The split it was trained with.
+    pub fn split_rule(&self) -> SplitRule {
+        SplitRule { by: self.held_out, seed: self.split_seed, fraction: self.validation_fraction }
+    }
+
+    /// Records the split it is trained with.
+    pub fn set_split(&mut self, rule: &SplitRule) {
+        (self.held_out, self.split_seed, self.validation_fraction) = (rule.by, rule.seed, rule.fraction);
     }
 
     pub fn window_spec(&self) -> WindowSpec {

@@ -13,7 +13,7 @@ use dynforge_dataset::examples::ExampleRecord;
 use dynforge_dataset::examples::Examples;
 use dynforge_dataset::examples::generated::{PhysicsExamples, PhysicsSource};
 use dynforge_dataset::metrics::score;
-use dynforge_dataset::split::{Split, split_of};
+use dynforge_dataset::split::{Split, SplitRule, split_of};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_identify::{Evidence, PAIRED_NOISE_GAIN};
 use dynforge_proto::job::Job;
@@ -59,7 +59,7 @@ fn the_map_recovers_the_exactly_identifiable_labels_of_robots_it_never_saw() {
     let split = (0..100).map(|s| (s, 0.3)).find(|&sf| (0..3).filter(|&r| validation(sf, r)).count() == 1).unwrap();
     let record = ExampleRecord { generated_per_epoch: 16384, real: true, noisy: false };
     let source = PhysicsSource { generator: cfg.clone(), seed: 1234, examples: record };
-    let mut examples = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
+    let mut examples = PhysicsExamples::new(&set, prior.clone(), &SplitRule::robots(split.0, split.1), source).unwrap();
     let model = PhysicsConfig { hidden: 128, layers: 2, ..PhysicsConfig::new(examples.shape()[1]) };
     let family = generate(&cfg, 4, 0).unwrap().model;
     let mut ck = Checkpoint::new(NetworkConfig::Physics(model), &spec, &family, None, examples.standardizer());
@@ -129,7 +129,7 @@ fn generated_only_and_noisy_examples_change_only_what_they_say() {
     let examples = |real: bool, noisy: bool| {
         let examples = ExampleRecord { generated_per_epoch: 48, real, noisy };
         let source = PhysicsSource { generator: cfg.clone(), seed: 99, examples };
-        let mut e = PhysicsExamples::new(&set, prior.clone(), split, source).unwrap();
+        let mut e = PhysicsExamples::new(&set, prior.clone(), &SplitRule::robots(split.0, split.1), source).unwrap();
         e.begin_epoch(2);
         e
     };

@@ -39,6 +39,7 @@ fn corpus(n: usize, seed: u64) -> Corpus {
         data,
         labels,
         robots: (0..n as u64).collect(),
+        trajectories: vec![0; n],
         hit: false,
     };
     let all: Vec<usize> = (0..n).collect();
@@ -259,7 +260,7 @@ impl TrainObserver for Batches {
 
 #[test]
 fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_ones() {
-    use dynforge_dataset::split::{Split, split_of};
+    use dynforge_dataset::split::{Split, SplitRule, split_of};
     use dynforge_proto::job::Job;
     let dir = tempfile::tempdir().unwrap();
     // Four robots, two trajectories each; the split seed puts robots on both sides.
@@ -283,11 +284,12 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
         data: vec![],
         labels: vec![],
         robots: vec![],
+        trajectories: vec![],
         hit: false,
     };
     let mut c = Corpus { windows: empty, train: vec![], validation: vec![], standardizer: Standardizer::fit_empty() };
     // The first two robots' shards exist when training starts.
-    assert!(c.add_shards(&paths[..4], &features, seed, fraction).is_empty());
+    assert!(c.add_shards(&paths[..4], &features, &SplitRule::robots(seed, fraction)).is_empty());
     let (train0, val0) = (c.train.len(), c.validation.len());
     assert!(train0 > 0 && val0 > 0);
     c.standardizer = Standardizer::fit(&c.windows, &c.train);
@@ -301,7 +303,7 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
         if calls == 1 {
             let mut new = paths[4..].to_vec();
             new.push(broken.clone());
-            skipped = c.add_shards(&new, &features, seed, fraction);
+            skipped = c.add_shards(&new, &features, &SplitRule::robots(seed, fraction));
         }
         calls += 1;
     };

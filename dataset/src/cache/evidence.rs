@@ -11,6 +11,7 @@ use dynforge_recording::{Recording, read_shard_bytes};
 use super::codec::{Decoder, Encoder};
 use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
 use crate::evidence::{NOISE_FLOOR, recording_evidence};
+use crate::split::{HoldOut, Origin, Split, SplitRule, origins};
 use crate::window::WindowSpec;
 
 /// Pieces of evidence with their robot and labels, stored flat.
@@ -18,6 +19,8 @@ use crate::window::WindowSpec;
 pub struct EvidenceList {
     pub rank: usize,
     pub robots: Vec<u64>,
+    /// The robot's trajectory index of the recording each piece is (or is cut from).
+    pub trajectories: Vec<u32>,
     pub labels: Vec<[f64; NUM_LABELS]>,
     /// For windows: the index of their recording in the set's recordings.
     pub recording: Vec<u64>,
@@ -38,8 +41,9 @@ impl EvidenceList {
         self.robots.is_empty()
     }
 
-    fn push(&mut self, robot: u64, labels: [f64; NUM_LABELS], recording: u64, e: &Evidence) {
+    fn push(&mut self, (robot, trajectory): (u64, u32), labels: [f64; NUM_LABELS], recording: u64, e: &Evidence) {
         self.robots.push(robot);
+        self.trajectories.push(trajectory);
         self.labels.push(labels);
         self.recording.push(recording);
         self.h.extend(&e.h);
@@ -50,6 +54,7 @@ impl EvidenceList {
     fn push_from(&mut self, other: &EvidenceList, i: usize, recording: u64) {
         let (r, p) = (self.rank, packed_len(self.rank));
         self.robots.push(other.robots[i]);
+        self.trajectories.push(other.trajectories[i]);
         self.labels.push(other.labels[i]);
         self.recording.push(recording);
         self.h.extend(&other.h[i * p..(i + 1) * p]);
@@ -68,10 +73,15 @@ impl EvidenceList {
         &self.h[i * p..(i + 1) * p]
     }
 
-    /// Evidence summed per robot, for the robots `keep` accepts: (robot, labels, evidence).
-    pub fn per_robot(&self, keep: impl Fn(u64) -> bool) -> Vec<(u64, [f64; NUM_LABELS], Evidence)> {
+    /// Where each piece comes from (for a list of windows: stored recording by recording, in time order).
+    pub fn origins(&self) -> Vec<Origin> {
+        origins(&self.robots, &self.trajectories)
+    }
+
+    /// Evidence summed per robot over the pieces `keep` accepts (by index): (robot, labels, evidence).
+    pub fn per_robot(&self, keep: impl Fn(usize) -> bool) -> Vec<(u64, [f64; NUM_LABELS], Evidence)> {
         let mut out: std::collections::BTreeMap<u64, ([f64; NUM_LABELS], Evidence)> = Default::default();
-        for i in (0..self.len()).filter(|&i| keep(self.robots[i])) {
+        for i in (0..self.len()).filter(|&i| keep(i)) {
             let e = self.get(i);
             match out.get_mut(&self.robots[i]) {
                 Some((_, sum)) => sum.add(&e),
@@ -85,6 +95,7 @@ impl EvidenceList {
 
     fn encode(&self, e: &mut Encoder) {
         e.u64s([self.len() as u64]).u64s(self.robots.iter().copied()).u64s(self.recording.iter().copied());
+        e.u64s(self.trajectories.iter().map(|&t| t as u64));
         e.f64s(&self.labels.concat()).f64s(&self.h).f64s(&self.b);
     }
 
@@ -92,10 +103,11 @@ impl EvidenceList {
         let n = d.usize()?;
         let robots = d.u64s(n)?;
         let recording = d.u64s(n)?;
+        let trajectories = d.u64s(n)?.into_iter().map(u32::try_from).collect::<Result<_, _>>().ok()?;
         let labels = d.label_rows(n)?;
         let h = d.f64s(n.checked_mul(packed_len(rank))?)?;
         let b = d.f64s(n.checked_mul(rank)?)?;
-        Some(EvidenceList { rank, robots, labels, recording, h, b })
+        Some(EvidenceList { rank, robots, trajectories, labels, recording, h, b })
     }
 }
 
@@ -120,12 +132,13 @@ pub struct EvidenceSettings {
 /// One recording's contribution: its robot, labels, windows' and whole evidence.
 pub struct RecordingEvidence {
     robot: u64,
+    trajectory: u32,
     labels: [f64; NUM_LABELS],
     windows: Vec<Evidence>,
     whole: Evidence,
 }
 
-const MAGIC: &[u8; 8] = b"DFPHY001";
+const MAGIC: &[u8; 8] = b"DFPHY002";
 
 impl PhysicsSet {
     /// An empty set for evidence in the coordinates of a prior of rank `rank`.
@@ -155,6 +168,26 @@ impl PhysicsSet {
         super::load_or_build(dir, &EvidenceSettings { spec: *spec, prior: prior.clone() }, lock, progress)
     }
 
+    /// The side of every window and of every recording under `rule`. A recording is training data only when all its
+    /// windows are (under a split by window a recording's evidence holds its windows'); otherwise the side of its
+    /// robot or trajectory.
+    pub fn sides(&self, rule: &SplitRule) -> (Vec<Split>, Vec<Split>) {
+        let windows: Vec<Split> = self.windows.origins().into_iter().map(|o| rule.side(o)).collect();
+        let r = &self.recordings;
+        let mut recordings: Vec<Split> = (0..r.len())
+            .map(|i| rule.side(Origin { robot: r.robots[i], trajectory: r.trajectories[i], window: 0 }))
+            .collect();
+        if rule.by == HoldOut::Windows {
+            recordings.iter_mut().for_each(|s| *s = Split::Train);
+            for (side, &k) in windows.iter().zip(&self.windows.recording) {
+                if *side == Split::Validation {
+                    recordings[k as usize] = Split::Validation;
+                }
+            }
+        }
+        (windows, recordings)
+    }
+
     /// Adds a dataset recording (with labels and robot id): its windows' and its whole evidence.
     pub fn add(&mut self, rec: &Recording, prior: &ParameterPrior) -> Result<(), Skipped> {
         let settings = EvidenceSettings { spec: self.spec, prior: prior.clone() };
@@ -164,11 +197,11 @@ impl PhysicsSet {
 }
 
 fn of_recording(rec: &Recording, s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
-    let (Some(labels), Some(robot)) = (rec.labels, rec.robot) else {
-        return Err(Skipped::new(&rec.path, "no labels or robot id (not a dataset shard)"));
+    let (Some(labels), Some(robot), Some(trajectory)) = (rec.labels, rec.robot, rec.trajectory_index) else {
+        return Err(Skipped::new(&rec.path, "no labels, robot or trajectory index (not a dataset shard)"));
     };
     let (windows, whole) = recording_evidence(rec, &s.prior, &s.spec)?;
-    Ok(RecordingEvidence { robot, labels, windows, whole })
+    Ok(RecordingEvidence { robot, trajectory, labels, windows, whole })
 }
 
 impl Cached for PhysicsSet {
@@ -208,9 +241,9 @@ impl Cached for PhysicsSet {
 
     fn append(&mut self, _path: &Path, r: RecordingEvidence) -> Result<(), Skipped> {
         let k = self.recordings.len() as u64;
-        self.recordings.push(r.robot, r.labels, k, &r.whole);
+        self.recordings.push((r.robot, r.trajectory), r.labels, k, &r.whole);
         for w in &r.windows {
-            self.windows.push(r.robot, r.labels, k, w);
+            self.windows.push((r.robot, r.trajectory), r.labels, k, w);
         }
         Ok(())
     }

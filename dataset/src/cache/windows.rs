@@ -10,10 +10,11 @@ use dynforge_recording::{GRID_DT, read_shard_bytes};
 use super::codec::{Decoder, Encoder};
 use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
 use crate::features::JacobianFeatures;
+use crate::split::{Origin, origins};
 use crate::window::WindowSpec;
 use crate::windows::{row_width, windows};
 
-const MAGIC: &[u8; 8] = b"DFWIN001";
+const MAGIC: &[u8; 8] = b"DFWIN002";
 
 /// Windows of a whole dataset, with one label vector and robot id per window.
 #[derive(Debug, Clone, PartialEq)]
@@ -25,6 +26,8 @@ pub struct CachedWindows {
     pub data: Vec<f32>,
     pub labels: Vec<[f64; NUM_LABELS]>,
     pub robots: Vec<u64>,
+    /// Per window, its robot's trajectory index (the recording it was cut from).
+    pub trajectories: Vec<u32>,
     /// Whether this came from the cache file.
     pub hit: bool,
 }
@@ -39,6 +42,7 @@ pub struct WindowSettings {
 /// One shard's windows, before they join a [`CachedWindows`].
 pub struct ShardWindows {
     robot: u64,
+    trajectory: u32,
     labels: [f64; NUM_LABELS],
     width: usize,
     count: usize,
@@ -47,7 +51,20 @@ pub struct ShardWindows {
 
 impl CachedWindows {
     pub fn new(spec: WindowSpec) -> Self {
-        CachedWindows { spec, width: 0, data: Vec::new(), labels: Vec::new(), robots: Vec::new(), hit: false }
+        CachedWindows {
+            spec,
+            width: 0,
+            data: Vec::new(),
+            labels: Vec::new(),
+            robots: Vec::new(),
+            trajectories: Vec::new(),
+            hit: false,
+        }
+    }
+
+    /// Where each window comes from.
+    pub fn origins(&self) -> Vec<Origin> {
+        origins(&self.robots, &self.trajectories)
     }
 
     pub fn count(&self) -> usize {
@@ -117,12 +134,12 @@ impl Cached for CachedWindows {
 
     fn read_shard(path: &Path, bytes: &[u8], s: &WindowSettings) -> Result<ShardWindows, Skipped> {
         let prep = read_shard_bytes(bytes, path, None)?;
-        let (Some(labels), Some(robot)) = (prep.labels, prep.robot) else {
-            return Err(Skipped::new(path, "no labels or robot id (not a dataset shard)"));
+        let (Some(labels), Some(robot), Some(trajectory)) = (prep.labels, prep.robot, prep.trajectory_index) else {
+            return Err(Skipped::new(path, "no labels, robot or trajectory index (not a dataset shard)"));
         };
         let width = row_width(&prep.model, &s.features);
         let (count, data) = windows(&prep, &s.spec, &s.features);
-        Ok(ShardWindows { robot, labels, width, count, data })
+        Ok(ShardWindows { robot, trajectory, labels, width, count, data })
     }
 
     fn append(&mut self, path: &Path, w: ShardWindows) -> Result<(u64, Range<usize>), Skipped> {
@@ -135,6 +152,7 @@ impl Cached for CachedWindows {
         self.data.extend(w.data);
         self.labels.extend(std::iter::repeat_n(w.labels, w.count));
         self.robots.extend(std::iter::repeat_n(w.robot, w.count));
+        self.trajectories.extend(std::iter::repeat_n(w.trajectory, w.count));
         Ok((w.robot, start..start + w.count))
     }
 
@@ -142,6 +160,7 @@ impl Cached for CachedWindows {
         let mut e = Encoder::new(MAGIC, self.data.len() * 4 + self.labels.len() * (NUM_LABELS * 8 + 8));
         e.u64s([self.spec.len, self.spec.stride, self.spec.ssr, self.width, self.count()].map(|v| v as u64));
         e.f32s(&self.data).f64s(&self.labels.concat()).u64s(self.robots.iter().copied());
+        e.u64s(self.trajectories.iter().map(|&t| t as u64));
         e.finish()
     }
 
@@ -151,12 +170,14 @@ impl Cached for CachedWindows {
         let data = d.f32s(count.checked_mul(len)?.checked_mul(width)?)?;
         let labels = d.label_rows(count)?;
         let robots = d.u64s(count)?;
+        let trajectories = d.u64s(count)?.into_iter().map(u32::try_from).collect::<Result<_, _>>().ok()?;
         d.done().then_some(CachedWindows {
             spec: WindowSpec { len, stride, ssr },
             width,
             data,
             labels,
             robots,
+            trajectories,
             hit: true,
         })
     }
@@ -173,7 +194,8 @@ impl Cached for CachedWindows {
             let step = out.spec.len * part.width;
             out.data.extend_from_slice(&part.data[items.start * step..items.end * step]);
             out.labels.extend_from_slice(&part.labels[items.clone()]);
-            out.robots.extend_from_slice(&part.robots[items]);
+            out.robots.extend_from_slice(&part.robots[items.clone()]);
+            out.trajectories.extend_from_slice(&part.trajectories[items]);
         }
         Ok(out)
     }

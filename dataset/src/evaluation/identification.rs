@@ -108,7 +108,7 @@ pub(crate) fn check(
     let mut by_robot: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
     for p in list_shards(&shard_dir(data)).unwrap_or_default() {
         let robot = p.file_name().and_then(|n| n.to_str()).and_then(dynforge_proto::shard::robot_of_file_name);
-        if let Some(r) = robot.filter(|&r| estimator.validates(r)) {
+        if let Some(r) = robot.filter(|&r| estimator.holds_out_robot(r)) {
             by_robot.entry(r).or_default().push(p);
         }
     }

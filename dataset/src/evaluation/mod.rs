@@ -21,7 +21,7 @@ use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
 use crate::metrics::{Scores, score};
-use crate::split::{Split, split_of};
+use crate::split::{HoldOut, SplitRule};
 use crate::window::WindowSpec;
 use identification::IdentificationCheck;
 use recording::{RecordingError, normal_equations, physical_parameters};
@@ -32,8 +32,8 @@ pub type EstimatorError = Box<dyn std::error::Error + Send + Sync>;
 
 /// What the checks need of an estimator.
 pub trait Estimator: Sync {
-    /// The robot-level split it was trained with: (seed, validation fraction).
-    fn split(&self) -> (u64, f64);
+    /// The split it was trained with.
+    fn split(&self) -> SplitRule;
     /// Its window geometry: a recording shorter than one window cannot be estimated.
     fn window_spec(&self) -> WindowSpec;
     /// Mean and standard deviation of the labels it was trained with [SI].
@@ -41,10 +41,9 @@ pub trait Estimator: Sync {
     /// Its labels [SI] for one robot, from that robot's recordings.
     fn estimate(&self, recordings: &[&Recording]) -> Result<[f64; NUM_LABELS], EstimatorError>;
 
-    /// Whether `robot` is one of its validation robots.
-    fn validates(&self, robot: u64) -> bool {
-        let (seed, fraction) = self.split();
-        split_of(seed, robot, fraction) == Split::Validation
+    /// Whether `robot` was held out of its training whole (never under a split by trajectory or window).
+    fn holds_out_robot(&self, robot: u64) -> bool {
+        self.split().holds_out_robot(robot)
     }
 }
 
@@ -73,6 +72,11 @@ pub struct TorqueCheck {
 pub struct Report {
     pub checkpoint: String,
     pub epoch: usize,
+    /// What was held out for validation, and the split in words; reports before splits were chosen held out robots.
+    #[serde(default)]
+    pub held_out: HoldOut,
+    #[serde(default)]
+    pub split: String,
     /// Per validation window (the paper's protocol).
     pub windows: Scores,
     /// Per validation robot, its windows' predictions averaged.
@@ -91,8 +95,9 @@ pub struct Report {
 impl Report {
     pub fn markdown(&self) -> String {
         let mut out = format!(
-            "# Validation of {} (epoch {})\n\nPer window (the paper's protocol; RMSE in standardised units):\n\n",
-            self.checkpoint, self.epoch
+            "# Validation of {} (epoch {})\n\nSplit: {}.\n\nPer window (the paper's protocol; RMSE in standardised \
+             units):\n\n",
+            self.checkpoint, self.epoch, self.split
         );
         out.push_str(&tables::tables(&self.windows, "Overall"));
         let groups: Vec<String> = tables::group_r2(&self.windows).iter().map(|(g, r)| format!("{g} {r:.4}")).collect();
@@ -123,6 +128,11 @@ impl Report {
         }
         if let Some(i) = &self.identification {
             out.push_str(&i.markdown());
+        }
+        if self.held_out != HoldOut::Robots {
+            out.push_str(
+                "\nThe torque and identification checks run on robots never seen in training: none under this split.\n",
+            );
         }
         out
     }
@@ -195,6 +205,8 @@ pub fn report(
     Ok(Report {
         checkpoint: name.to_string(),
         epoch,
+        held_out: estimator.split().by,
+        split: estimator.split().to_string(),
         windows,
         robots,
         recordings,
@@ -231,7 +243,7 @@ fn training_distribution(
     estimator: &impl Estimator,
 ) -> ([f64; NUM_LABELS], [f64; NUM_LABELS]) {
     let robots: BTreeMap<u64, [f64; NUM_LABELS]> =
-        robots.iter().zip(labels).filter(|(r, _)| !estimator.validates(**r)).map(|(r, y)| (*r, *y)).collect();
+        robots.iter().zip(labels).filter(|(r, _)| !estimator.holds_out_robot(**r)).map(|(r, y)| (*r, *y)).collect();
     let n = robots.len().max(1) as f64;
     let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| robots.values().map(|y| y[k]).sum::<f64>() / n);
     let std = std::array::from_fn(|k| (robots.values().map(|y| (y[k] - mean[k]).powi(2)).sum::<f64>() / n).sqrt());
@@ -240,7 +252,7 @@ fn training_distribution(
 
 /// Up to `max` readable validation shards of `data`, in name order.
 fn validation_recordings(estimator: &impl Estimator, data: &Path, max: usize) -> Vec<Recording> {
-    let validation = |r: u64| estimator.validates(r);
+    let validation = |r: u64| estimator.holds_out_robot(r);
     // Shard names carry the robot: skip training robots' shards without reading them.
     let named_robot =
         |p: &Path| p.file_name().and_then(|n| n.to_str()).and_then(dynforge_proto::shard::robot_of_file_name);

@@ -54,6 +54,7 @@ mod tests {
             trajectory: dynforge_testkit::sinusoid_recording(&truth, 0, GRID_DT, 4000),
             labels: None,
             robot: None,
+            trajectory_index: None,
         };
         let ne = normal_equations(&p).unwrap();
         // Central differences of qd err by w^2 dt^2 / 6 relative to qdd (w <= 2.5 rad/s): below 1e-6.

@@ -1,4 +1,4 @@
-//! The transformer's examples: the windows of a dataset, split by robot and standardised. With `--follow` it grows
+//! The transformer's examples: the windows of a dataset, split (by robot unless asked otherwise) and standardised. With `--follow` it grows
 //! between epochs as the generation adds shards.
 
 use dynforge_proto::NUM_LABELS;
@@ -8,7 +8,7 @@ use crate::cache::Skipped;
 use crate::cache::windows::CachedWindows;
 use crate::features::JacobianFeatures;
 use crate::normalize::Standardizer;
-use crate::split::{Split, split_of};
+use crate::split::{Origin, Split, SplitRule};
 
 /// Windows split and standardised, ready for batches.
 pub struct Corpus {
@@ -19,22 +19,27 @@ pub struct Corpus {
 }
 
 impl Corpus {
-    /// Adds the windows of the dataset shards `paths`, each to the side of the split its robot belongs to. Shards
-    /// that cannot be read, or are not dataset shards, are skipped and returned with the reason.
+    /// Adds the windows of the dataset shards `paths`, each to its side of the split `rule`. Shards that cannot be
+    /// read, or are not dataset shards, are skipped and returned with the reason.
     pub fn add_shards(
         &mut self,
         paths: &[std::path::PathBuf],
         features: &JacobianFeatures,
-        split_seed: u64,
-        validation_fraction: f64,
+        rule: &SplitRule,
     ) -> Vec<Skipped> {
         let mut skipped = Vec::new();
         for added in self.windows.add_shards(paths, features) {
             match added {
-                Ok((robot, new)) => match split_of(split_seed, robot, validation_fraction) {
-                    Split::Train => self.train.extend(new),
-                    Split::Validation => self.validation.extend(new),
-                },
+                // A shard is one recording: its windows are 0, 1, ... of it.
+                Ok((robot, new)) => {
+                    for (window, i) in new.enumerate() {
+                        let trajectory = self.windows.trajectories[i];
+                        match rule.side(Origin { robot, trajectory, window: window as u32 }) {
+                            Split::Train => self.train.push(i),
+                            Split::Validation => self.validation.push(i),
+                        }
+                    }
+                }
                 Err(why) => skipped.push(why),
             }
         }

@@ -18,7 +18,7 @@ use super::{ExampleRecord, Examples};
 use crate::cache::evidence::PhysicsSet;
 use crate::evidence::{Draw, LABEL_COLUMNS, NOISE_FLOOR, draw_seed, feature_width, features};
 use crate::normalize::Standardizer;
-use crate::split::{Split, split_of};
+use crate::split::{Split, SplitRule};
 use dynforge_proto::parallel::map_in_order;
 
 /// How the physics examples are made.
@@ -72,19 +72,20 @@ pub struct PhysicsExamples {
 }
 
 impl PhysicsExamples {
-    /// The examples of `set`, split by robot (`split_seed`, `fraction`). Label statistics come from the generator
+    /// The examples of `set`, split by `rule`. Label statistics come from the generator
     /// (a calibration draw of its robots: what the network mostly sees, and well defined however few robots the
     /// dataset has); input statistics from the real training examples and the calibration draw (the labels'
     /// spreads and plug-in values stay in label units, since the network scales and adds its output with them).
     pub fn new(
         set: &PhysicsSet,
         prior: ParameterPrior,
-        split: (u64, f64),
+        rule: &SplitRule,
         source: PhysicsSource,
     ) -> Result<Self, ExamplesError> {
-        let train = |r: u64| split_of(split.0, r, split.1) == Split::Train;
-        let train_windows: Vec<usize> = (0..set.windows.len()).filter(|&i| train(set.windows.robots[i])).collect();
-        let validation: Vec<usize> = (0..set.windows.len()).filter(|&i| !train(set.windows.robots[i])).collect();
+        let (window_sides, recording_sides) = set.sides(rule);
+        let (train_windows, validation): (Vec<usize>, Vec<usize>) =
+            (0..set.windows.len()).partition(|&i| window_sides[i] == Split::Train);
+        let train = |i: usize| recording_sides[i] == Split::Train;
         let ids: Vec<u64> = (0..CALIBRATION as u64).collect();
         let generated: Vec<[f64; NUM_LABELS]> = map_in_order(&ids, |&id| {
             generate(&source.generator, draw_seed(source.seed, Draw::Prior), id)
@@ -98,7 +99,7 @@ impl PhysicsExamples {
         let (lm, ls) = (standardizer.label_mean, standardizer.label_std);
         let mut evidence: Vec<(Evidence, [f64; NUM_LABELS])> = Vec::new();
         evidence.extend(train_windows.iter().map(|&i| (set.windows.get(i), set.windows.labels[i])));
-        let recordings: Vec<usize> = (0..set.recordings.len()).filter(|&i| train(set.recordings.robots[i])).collect();
+        let recordings: Vec<usize> = (0..set.recordings.len()).filter(|&i| train(i)).collect();
         evidence.extend(recordings.iter().map(|&i| (set.recordings.get(i), set.recordings.labels[i])));
         evidence.extend(set.recordings.per_robot(train).into_iter().map(|(_, y, e)| (e, y)));
         let raw = map_in_order(&evidence, |(e, _)| features(&prior, e, &lm, &ls));

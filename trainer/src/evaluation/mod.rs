@@ -13,6 +13,7 @@ use dynforge_dataset::examples::Examples;
 use dynforge_dataset::examples::corpus::Corpus;
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::Standardizer;
+use dynforge_dataset::split::{Split, SplitRule};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::NUM_LABELS;
 use dynforge_recording::Recording;
@@ -24,8 +25,8 @@ use crate::training::EpochMetrics;
 use crate::training::session::Inputs;
 
 impl Estimator for Predictor {
-    fn split(&self) -> (u64, f64) {
-        (self.checkpoint.split_seed, self.checkpoint.validation_fraction)
+    fn split(&self) -> SplitRule {
+        self.checkpoint.split_rule()
     }
 
     fn window_spec(&self) -> WindowSpec {
@@ -76,15 +77,15 @@ fn validate(
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<Validation, InferenceError> {
     let c = &predictor.checkpoint;
-    let validation = |r: u64| predictor.validates(r);
+    let rule = c.split_rule();
     let inputs = match inputs {
         Some(i) => i,
         None => load_inputs(c, data, progress)?,
     };
     progress("validation", 0, 1);
     let v = match inputs {
-        Inputs::Windows(w) => validate_windows(predictor, w, validation),
-        Inputs::Physics(set) => validate_physics(predictor, &set, validation)?,
+        Inputs::Windows(w) => validate_windows(predictor, w, &rule),
+        Inputs::Physics(set) => validate_physics(predictor, &set, &rule)?,
     };
     progress("validation", 1, 1);
     Ok(v)
@@ -116,8 +117,10 @@ fn load_inputs(
     })
 }
 
-fn validate_windows(predictor: &Predictor, w: CachedWindows, validation: impl Fn(u64) -> bool) -> Validation {
-    let ids: Vec<usize> = (0..w.count()).filter(|&i| validation(w.robots[i])).collect();
+/// The validation windows' predictions, and per robot the mean over its validation windows.
+fn validate_windows(predictor: &Predictor, w: CachedWindows, rule: &SplitRule) -> Validation {
+    let origins = w.origins();
+    let ids: Vec<usize> = (0..w.count()).filter(|&i| rule.side(origins[i]) == Split::Validation).collect();
     let standardizer = predictor.checkpoint.standardizer();
     let corpus = Corpus { windows: w, train: Vec::new(), validation: ids, standardizer };
     let (x, truth) = corpus.validation();
@@ -136,18 +139,16 @@ fn validate_windows(predictor: &Predictor, w: CachedWindows, validation: impl Fn
     }
 }
 
-fn validate_physics(
-    predictor: &Predictor,
-    set: &PhysicsSet,
-    validation: impl Fn(u64) -> bool,
-) -> Result<Validation, InferenceError> {
+fn validate_physics(predictor: &Predictor, set: &PhysicsSet, rule: &SplitRule) -> Result<Validation, InferenceError> {
+    let (window_sides, recording_sides) = set.sides(rule);
+    let validation = |i: usize| recording_sides[i] == Split::Validation;
     let w = &set.windows;
-    let ids: Vec<usize> = (0..w.len()).filter(|&i| validation(w.robots[i])).collect();
+    let ids: Vec<usize> = (0..w.len()).filter(|&i| window_sides[i] == Split::Validation).collect();
     let window_predicted = predictor.predict_evidence(&ids.iter().map(|&i| w.get(i)).collect::<Vec<_>>())?;
-    let robots = set.recordings.per_robot(&validation);
+    let robots = set.recordings.per_robot(validation);
     let robot_predicted = predictor.predict_evidence(&robots.iter().map(|(_, _, e)| e.clone()).collect::<Vec<_>>())?;
     let r = &set.recordings;
-    let logs: Vec<usize> = (0..r.len()).filter(|&i| validation(r.robots[i])).collect();
+    let logs: Vec<usize> = (0..r.len()).filter(|&i| validation(i)).collect();
     let log_predicted = predictor.predict_evidence(&logs.iter().map(|&i| r.get(i)).collect::<Vec<_>>())?;
     Ok(Validation {
         robots: w.robots.clone(),

@@ -198,6 +198,7 @@ impl Predictor {
             data,
             labels: vec![[0.0; NUM_LABELS]; count],
             robots: vec![0; count],
+            trajectories: vec![0; count],
             hit: false,
         };
         let s = self.checkpoint.standardizer();

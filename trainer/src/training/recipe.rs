@@ -3,12 +3,13 @@
 //! estimator, and the command line's overrides ([`RecipeFlags`]).
 
 use dynforge_dataset::prepare::ModelKind;
+use dynforge_dataset::split::HoldOut;
 use dynforge_dataset::window::WindowSpec;
 
 use super::TrainConfig;
 use crate::model::{PhysicsConfig, Preset, TransformerConfig};
 #[cfg(feature = "clap")]
-use dynforge_proto::flags::{positive, whole};
+use dynforge_proto::flags::{positive, share, whole};
 
 /// The architecture: the estimator, and the parts of its default size a run overrides.
 #[derive(Debug, Clone, PartialEq)]
@@ -59,7 +60,8 @@ pub struct Recipe {
     pub model: ModelChoice,
     pub window: WindowSpec,
     pub train: TrainConfig,
-    /// Share of the robots held out for validation.
+    /// What is held out for validation, and its share.
+    pub split: HoldOut,
     pub validation: f64,
     /// Robots drawn from the generator per epoch (physics estimator).
     pub generated_per_epoch: usize,
@@ -83,6 +85,7 @@ impl Recipe {
             model: ModelChoice::new(kind, Preset::Paper),
             window: WindowSpec::default(),
             train,
+            split: HoldOut::Robots,
             validation: 0.2,
             generated_per_epoch: 32_768,
             generated_only: false,
@@ -138,11 +141,15 @@ pub struct RecipeFlags {
     /// Epochs without a better validation loss before stopping early.
     #[cfg_attr(feature = "clap", arg(long))]
     pub patience: Option<usize>,
-    /// Seed of the robot-level split, the initial weights, the batch order and dropout.
+    /// Seed of the split, the initial weights, the batch order and dropout.
     #[cfg_attr(feature = "clap", arg(long, default_value_t = 0))]
     pub seed: u64,
-    /// Share of the robots held out for validation.
-    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.2))]
+    /// What validation holds out: whole robots (what a new robot is), whole recordings of robots trained on with
+    /// their others, or windows drawn at random across all (robots and recordings seen in training).
+    #[cfg_attr(feature = "clap", arg(long, value_enum, default_value_t = HoldOut::Robots))]
+    pub split: HoldOut,
+    /// Share held out for validation (of the robots, recordings or windows).
+    #[cfg_attr(feature = "clap", arg(long, default_value_t = 0.2, value_parser = share))]
     pub validation: f64,
     /// Parts each batch is split into, each run on a thread of its own (part of the run's definition, not of the
     /// machine: the same value gives the same model anywhere) [default: transformer 4, physics 2].
@@ -179,7 +186,7 @@ impl RecipeFlags {
         t.patience = self.patience.unwrap_or(t.patience);
         t.micro_batches = self.micro_batches.unwrap_or(t.micro_batches);
         t.seed = self.seed;
-        r.validation = self.validation;
+        (r.split, r.validation) = (self.split, self.validation);
         r.generated_per_epoch = self.generated.unwrap_or(r.generated_per_epoch);
         r.generated_only = self.generated_only;
         r.noisy = self.noisy;

@@ -18,6 +18,7 @@ use dynforge_dataset::examples::generated::{ExamplesError, PhysicsExamples, Phys
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::{Standardizer, split_windows};
 use dynforge_dataset::prepare::ModelKind;
+use dynforge_dataset::split::SplitRule;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::NUM_LABELS;
 use dynforge_recording::ReadError;
@@ -170,15 +171,17 @@ impl Session<'_> {
         Run { dir: self.out, config: &self.recipe.train, resume, stop: self.stop }
     }
 
-    fn split(&self, previous: &Option<Checkpoint>) -> (u64, f64) {
+    /// A resumed run keeps its split; a new one takes the recipe's.
+    fn split(&self, previous: &Option<Checkpoint>) -> SplitRule {
+        let r = self.recipe;
         previous
             .as_ref()
-            .map_or((self.recipe.train.seed, self.recipe.validation), |c| (c.split_seed, c.validation_fraction))
+            .map_or(SplitRule { by: r.split, seed: r.train.seed, fraction: r.validation }, |c| c.split_rule())
     }
 
-    fn stamp(&self, c: &mut Checkpoint, split: (u64, f64)) {
+    fn stamp(&self, c: &mut Checkpoint, split: &SplitRule) {
         c.dataset = std::fs::canonicalize(self.data).unwrap_or(self.data.to_path_buf()).display().to_string();
-        (c.split_seed, c.validation_fraction) = split;
+        c.set_split(split);
     }
 
     fn finish(
@@ -214,9 +217,9 @@ impl Session<'_> {
         let mut corpus =
             Corpus { windows, train: Vec::new(), validation: Vec::new(), standardizer: Standardizer::fit_empty() };
         if self.follow {
-            self.wait_for_both_splits(&mut corpus, &mut follower, &features, split, observer)?;
+            self.wait_for_both_splits(&mut corpus, &mut follower, &features, &split, observer)?;
         } else {
-            (corpus.train, corpus.validation) = split_windows(&corpus.windows, split.0, split.1);
+            (corpus.train, corpus.validation) = split_windows(&corpus.windows, &split);
         }
         let checkpoint = match previous {
             Some(c) => c,
@@ -226,7 +229,7 @@ impl Session<'_> {
                 model.check().map_err(TrainError::from)?;
                 let mut c =
                     Checkpoint::new(NetworkConfig::Transformer(model), &spec, &robot, Some(&features), &standardizer);
-                self.stamp(&mut c, split);
+                self.stamp(&mut c, &split);
                 c
             }
         };
@@ -239,7 +242,7 @@ impl Session<'_> {
         ));
         // Messages of the growth step wait for the observer's next call (both need it mutably).
         let notes = std::cell::RefCell::new(Vec::new());
-        let mut grow = |c: &mut Corpus| self.grow(c, &mut follower, &features, split, &notes);
+        let mut grow = |c: &mut Corpus| self.grow(c, &mut follower, &features, &split, &notes);
         let grow: Option<&mut dyn FnMut(&mut Corpus)> = if self.follow { Some(&mut grow) } else { None };
         let mut relay = Relay { observer, notes: Some(&notes) };
         let summary = train(&mut corpus, grow, checkpoint, &self.training_run(resume), &mut relay)?;
@@ -275,12 +278,12 @@ impl Session<'_> {
         corpus: &mut Corpus,
         follower: &mut ShardFollower,
         features: &JacobianFeatures,
-        split: (u64, f64),
+        split: &SplitRule,
         observer: &mut dyn SessionObserver,
     ) -> Result<(), SessionError> {
         loop {
             let new = follower.poll().map_err(|e| self.listing(e))?;
-            skip(observer, &corpus.add_shards(&new, features, split.0, split.1));
+            skip(observer, &corpus.add_shards(&new, features, split));
             if !corpus.train.is_empty() && !corpus.validation.is_empty() {
                 return Ok(());
             }
@@ -298,13 +301,13 @@ impl Session<'_> {
         c: &mut Corpus,
         follower: &mut ShardFollower,
         features: &JacobianFeatures,
-        split: (u64, f64),
+        split: &SplitRule,
         notes: &std::cell::RefCell<Vec<String>>,
     ) {
         match follower.poll() {
             Ok(new) if !new.is_empty() => {
                 let before = c.windows.count();
-                let skipped = c.add_shards(&new, features, split.0, split.1);
+                let skipped = c.add_shards(&new, features, split);
                 let mut n = notes.borrow_mut();
                 n.extend(skipped.iter().map(|s| format!("warning: skipped {s}")));
                 n.push(format!(
@@ -368,14 +371,14 @@ impl Session<'_> {
         };
         let source =
             PhysicsSource { generator: generator_cfg, seed: draw_seed(seed, Draw::Synthetic), examples: record };
-        let mut examples = PhysicsExamples::new(&set, prior, split, source)?;
+        let mut examples = PhysicsExamples::new(&set, prior, &split, source)?;
         // An epoch's generated robots are drawn and held at once (twice, while they are gathered).
         let per_robot = (examples.shape()[1] * 4 + NUM_LABELS * 8 + 8) as u128;
         let generated = self.recipe.generated_per_epoch;
         super::check_memory(2 * generated as u128 * per_robot, || {
             format!("--generated {generated}: an epoch's robots")
         })?;
-        let checkpoint = self.physics_checkpoint(previous, &examples, &spec, split, record, observer)?;
+        let checkpoint = self.physics_checkpoint(previous, &examples, &spec, &split, record, observer)?;
         observer.message(&format!(
             "model: {}; {} real training examples (windows, recordings, robots) + {} generated robots per epoch, {} \
              validation windows",
@@ -395,7 +398,7 @@ impl Session<'_> {
         previous: Option<Checkpoint>,
         examples: &PhysicsExamples,
         spec: &WindowSpec,
-        split: (u64, f64),
+        split: &SplitRule,
         record: ExampleRecord,
         observer: &mut dyn SessionObserver,
     ) -> Result<Checkpoint, SessionError> {
