@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_excite::write::{summary, write_design};
-use dynforge_excite::{Options, design_with};
+use dynforge_excite::{Options, SelfCollision, design_with, start_pose};
 use dynforge_proto::flags::{positive, weld, whole};
 use dynforge_robot::urdf;
 
@@ -50,6 +50,10 @@ pub struct ExciteArgs {
     /// Weld this joint (a gripper's, say) at a position: NAME or NAME=POSITION (default 0); repeatable.
     #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
     fix: Vec<(String, f64)>,
+    /// Do not check self-collision (for a URDF whose collision meshes cannot be read: only STL is; `package://` is
+    /// looked for in ROS_PACKAGE_PATH, AMENT_PREFIX_PATH and above the URDF).
+    #[arg(long)]
+    no_collision: bool,
     /// Seed of the search (the same seed, the same trajectories).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -73,7 +77,15 @@ pub fn run(args: ExciteArgs) -> Result<()> {
     };
     let bar = dynforge_display::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
     bar.set_message(format!("designing {} excitations of {}", options.count, model.name()));
-    let design = design_with(&model, &options, |done, total| {
+    let collision = match args.no_collision {
+        true => None,
+        false => {
+            let geometry = urdf::collision_bodies(&text, &args.urdf.display().to_string(), &welds)?;
+            let start = start_pose(&model, &options)?;
+            Some(SelfCollision::new(&model, &geometry, &args.urdf, &start)?)
+        }
+    };
+    let design = design_with(&model, &options, collision.as_ref(), |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     })

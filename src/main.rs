@@ -70,8 +70,8 @@ enum Command {
     /// inertia (physically valid) and every joint's friction, each with its standard deviation; no training needed.
     Identify(identify::IdentifyArgs),
     /// Design excitation trajectories for a robot's URDF: Fourier series within its limits, starting and ending at
-    /// rest, optimized so that the logs recorded while running them identify its parameters best (self-collision
-    /// is not checked yet).
+    /// rest, free of self-collision with its collision geometry, optimized so that the logs recorded while running
+    /// them identify its parameters best.
     Excite(excite::ExciteArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(pipeline::PipelineArgs),

@@ -167,3 +167,58 @@ fn bad_requests_are_refused_naming_the_problem() {
     assert!(!o.status.success() && e.contains("'j0'") && e.contains("not inside its range"), "{e}");
     assert!(!out.exists(), "nothing written for a refused request");
 }
+
+/// An arm whose upper arm can swing down into its base column: the designed motion is free of self-collision by
+/// Pinocchio's and coal's account, row by row of the CSV, with the same geometry (primitives, so both check the
+/// same shapes); designed without the check, the same request drives the arm into its column.
+#[test]
+fn the_design_is_free_of_self_collision_by_pinocchios_account() {
+    let Some(py) = dynforge_testkit::reference_python() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let urdf = tmp.path().join("column.urdf");
+    let inertial =
+        r#"<inertial><mass value="2"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.01"/></inertial>"#;
+    let limit = r#"effort="200" velocity="2""#;
+    std::fs::write(
+        &urdf,
+        format!(
+            r#"<robot name="column">
+  <link name="base"><collision><origin xyz="0 0 0.225"/><geometry><cylinder radius="0.1" length="0.45"/></geometry></collision></link>
+  <link name="turret">{inertial}<collision><origin xyz="0 0 0.025"/><geometry><cylinder radius="0.06" length="0.05"/></geometry></collision></link>
+  <link name="upper">{inertial}<collision><origin xyz="0 0 0.25"/><geometry><box size="0.06 0.06 0.5"/></geometry></collision></link>
+  <link name="fore">{inertial}<collision><origin xyz="0 0 0.225"/><geometry><box size="0.05 0.05 0.45"/></geometry></collision></link>
+  <link name="tool"><collision><geometry><sphere radius="0.05"/></geometry></collision></link>
+  <joint name="yaw" type="revolute"><parent link="base"/><child link="turret"/><origin xyz="0 0 0.45"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" {limit}/></joint>
+  <joint name="shoulder" type="revolute"><parent link="turret"/><child link="upper"/><origin xyz="0 0 0.05"/><axis xyz="0 1 0"/><limit lower="-2.9" upper="2.9" {limit}/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="fore"/><origin xyz="0 0 0.5"/><axis xyz="0 1 0"/><limit lower="-2.9" upper="2.9" {limit}/></joint>
+  <joint name="flange" type="fixed"><parent link="fore"/><child link="tool"/><origin xyz="0 0 0.45"/></joint>
+</robot>"#
+        ),
+    )
+    .unwrap();
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/self_collision.py");
+    let check = |out: &std::path::Path, extra: &[&str]| {
+        let mut args = vec!["excite", "--urdf", urdf.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        args.extend(["--count", "2", "--duration", "8", "--evaluations", "200", "--rate", "200", "--seed", "3"]);
+        args.extend(extra);
+        let o = dynforge(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let csvs: Vec<String> = (0..2).map(|k| out.join(format!("excitation-{k}.csv")).display().to_string()).collect();
+        let mut argv = vec![urdf.display().to_string()];
+        argv.extend(csvs);
+        let argv: Vec<&str> = argv.iter().map(String::as_str).collect();
+        let said = dynforge_testkit::run_python(&py, &script, &argv, "");
+        (String::from_utf8(o.stdout).unwrap(), serde_json::from_str::<serde_json::Value>(&said).unwrap())
+    };
+    let (printed, checked) = check(&tmp.path().join("checked"), &[]);
+    // Pinocchio pairs geometry objects: base-upper, base-fore, base-tool, turret-fore, turret-tool; the design pairs
+    // bodies (the tool welded to the forearm): base-upper, base-forearm, turret-forearm.
+    assert_eq!(checked["pairs"], 5, "{checked}");
+    assert_eq!(checked["colliding"], serde_json::json!([0, 0]), "{checked}");
+    assert!(printed.contains("free of self-collision (3 body pairs checked"), "{printed}");
+    let report = std::fs::read_to_string(tmp.path().join("checked/report.md")).unwrap();
+    assert!(report.contains("Self-collision: checked"), "{report}");
+    let (_, unchecked) = check(&tmp.path().join("unchecked"), &["--no-collision"]);
+    let hits: u64 = unchecked["colliding"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap()).sum();
+    assert!(hits > 0, "without the check the motion hits the column: {unchecked}");
+}

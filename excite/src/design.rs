@@ -7,6 +7,7 @@ use dynforge_robot::{Data, Model, regressor};
 use nalgebra::{DMatrix, DVector};
 
 use crate::ExciteError;
+use crate::collision::SelfCollision;
 use crate::fourier::Fourier;
 use crate::information::{Base, Quality, add_rows, scales};
 
@@ -68,6 +69,9 @@ pub struct Design {
     pub scales: Vec<f64>,
     /// Per trajectory the peaks reached, as shares of the limits: position, velocity, acceleration, effort.
     pub peaks: Vec<[f64; 4]>,
+    /// When self-collision was checked: per trajectory the smallest distance between checked bodies [m] and the
+    /// pair's names, and the number of pairs checked.
+    pub clearance: Option<(Vec<(f64, String)>, usize)>,
 }
 
 /// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
@@ -142,6 +146,10 @@ struct Sampler<'a> {
     nominal: DVector<f64>,
     samples: usize,
     data: Data,
+    collision: Option<&'a SelfCollision>,
+    /// The series' period and harmonics.
+    period: f64,
+    harmonics: usize,
 }
 
 impl Sampler<'_> {
@@ -170,6 +178,55 @@ impl Sampler<'_> {
             }
         }
         (w, peaks)
+    }
+
+    /// The first pair of bodies in contact along `f` at this sampler's rate, if any (none when collisions are not
+    /// checked).
+    fn contact(&mut self, f: &Fourier) -> Option<(usize, usize)> {
+        let c = self.collision?;
+        let n = self.model.dof();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        (0..self.samples).find_map(|k| {
+            f.at(f.period * k as f64 / self.samples as f64, &mut q, &mut qd, &mut qdd);
+            c.first_contact(self.model, &mut self.data, &q)
+        })
+    }
+
+    /// `c`, or `c` shrunk towards the start pose (by steps of a fifth, at most 8) until no checked bodies touch
+    /// along it; `Err` with the last pair in contact (`None`: the shrunk motion left the bounds).
+    fn free(&mut self, mut c: Candidate) -> Result<Candidate, Option<(usize, usize)>> {
+        let (start, harmonics) = (self.bounds.start.clone(), self.harmonics);
+        let series = |x: &[f64], period: f64| Fourier::from_free(period, &start, harmonics, x);
+        let mut contact = None;
+        for _ in 0..8 {
+            contact = self.contact(&series(&c.x, self.period));
+            if contact.is_none() {
+                return Ok(c);
+            }
+            let x: Vec<f64> = c.x.iter().map(|v| 0.8 * v).collect();
+            let (information, peaks) = self.sample(&series(&x, self.period), true);
+            if peaks.iter().any(|&p| p > 1.0 + 1e-9) {
+                return Err(None);
+            }
+            c = Candidate { x, information, peaks };
+        }
+        Err(contact)
+    }
+
+    /// The smallest distance between `check`'s pairs along `f` at this sampler's rate, and the pair's names.
+    fn clearance(&mut self, check: &SelfCollision, f: &Fourier) -> (f64, String) {
+        let n = self.model.dof();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        let mut best = (f64::INFINITY, String::from("no pair checked"));
+        for k in 0..self.samples {
+            f.at(f.period * k as f64 / self.samples as f64, &mut q, &mut qd, &mut qdd);
+            if let Some((d, pair)) = check.clearance(self.model, &mut self.data, &q)
+                && d < best.0
+            {
+                best = (d, check.describe(pair));
+            }
+        }
+        best
     }
 
     /// The series of free coefficients `x` scaled so that it keeps every bound (kinematic peaks scale with the
@@ -202,15 +259,23 @@ impl Sampler<'_> {
 /// Rate [Hz] the final trajectories' efforts are checked at.
 const DENSE_RATE: f64 = 1000.0;
 
-/// Designs `options.count` excitations for `model`.
-pub fn design(model: &Model, options: &Options) -> Result<Design, ExciteError> {
-    design_with(model, options, |_, _| {})
+/// The pose every trajectory of `options` starts and ends at.
+pub fn start_pose(model: &Model, options: &Options) -> Result<Vec<f64>, ExciteError> {
+    check(model, options)?;
+    Ok(Bounds::new(model, options)?.start)
 }
 
-/// [`design`], calling `progress(done, total)` as candidates are judged.
+/// Designs `options.count` excitations for `model` (self-collision not checked).
+pub fn design(model: &Model, options: &Options) -> Result<Design, ExciteError> {
+    design_with(model, options, None, |_, _| {})
+}
+
+/// [`design`], free of the self-collisions `collision` checks if given, calling `progress(done, total)` as
+/// candidates are judged.
 pub fn design_with(
     model: &Model,
     options: &Options,
+    collision: Option<&SelfCollision>,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Design, ExciteError> {
     check(model, options)?;
@@ -225,21 +290,31 @@ pub fn design_with(
         nominal,
         samples,
         data: Data::new(model),
+        collision,
+        period: options.duration,
+        harmonics: options.harmonics,
     };
     let dims = model.dof() * Fourier::free_per_joint(options.harmonics);
     let p = scales.len();
     let series = |x: &[f64]| Fourier::from_free(options.duration, &bounds.start, options.harmonics, x);
     let sum = |c: &[Candidate]| c.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
 
-    // Random starts, one per trajectory, fitted into the bounds; their information together fixes the base.
+    // Random starts, one per trajectory, fitted into the bounds and free of collisions; their information together
+    // fixes the base.
     let mut current = Vec::with_capacity(options.count);
+    let mut last_contact = None;
     for k in 0..options.count {
         let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
         let fitted = (0..20).find_map(|_| {
             let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
-            sampler.fit(&x, options.harmonics, options.duration)
+            let c = sampler.fit(&x, options.harmonics, options.duration)?;
+            sampler.free(c).map_err(|pair| last_contact = pair).ok()
         });
-        current.push(fitted.ok_or(ExciteError::Infeasible)?);
+        let why = || match (last_contact, collision) {
+            (Some(pair), Some(c)) => ExciteError::Collision(c.describe(pair)),
+            _ => ExciteError::Infeasible,
+        };
+        current.push(fitted.ok_or_else(why)?);
     }
     let random_information = sum(&current);
     let base = Base::of(&random_information);
@@ -261,6 +336,9 @@ pub fn design_with(
         nominal: sampler.nominal.clone(),
         samples: (options.duration * DENSE_RATE).ceil() as usize,
         data: Data::new(model),
+        collision,
+        period: options.duration,
+        harmonics: options.harmonics,
     };
     for c in current.iter_mut() {
         for _ in 0..50 {
@@ -273,10 +351,19 @@ pub fn design_with(
         if c.peaks[3] > 1.0 {
             return Err(ExciteError::Infeasible);
         }
+        // At 1 kHz a point of the arm moves millimetres between samples: what passes here passes in between.
+        if let (Some(pair), Some(check)) = (dense.contact(&series(&c.x)), collision) {
+            return Err(ExciteError::Collision(check.describe(pair)));
+        }
         c.information = sampler.sample(&series(&c.x), true).0;
     }
     let information = sum(&current);
+    let clearance = collision.map(|check| {
+        let per_trajectory = current.iter().map(|c| sampler.clearance(check, &series(&c.x))).collect();
+        (per_trajectory, check.pairs())
+    });
     Ok(Design {
+        clearance,
         alone: current.iter().map(|c| Quality::of(&base, &c.information)).collect(),
         together: Quality::of(&base, &information),
         random_together,
@@ -338,8 +425,15 @@ fn improve(
         }
         let size = best.x.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
         let x: Vec<f64> = best.x.iter().map(|v| v + step * size * rng.normal()).collect();
-        match sampler.fit(&x, options.harmonics, options.duration) {
-            Some(candidate) if judge(&candidate.information) > best_value => {
+        // The collision check costs more than the judging: only a candidate that would be kept is checked (a
+        // shrunk one is judged again).
+        let kept = sampler
+            .fit(&x, options.harmonics, options.duration)
+            .filter(|c| judge(&c.information) > best_value)
+            .and_then(|c| sampler.free(c).ok())
+            .filter(|c| judge(&c.information) > best_value);
+        match kept {
+            Some(candidate) => {
                 best_value = judge(&candidate.information);
                 best = candidate;
                 step = (step * 1.5).min(2.0);

@@ -3,12 +3,14 @@
 //! base parameters' information, as FloBaRoID and FIGAROH optimize it). What `identify` and the robot's family
 //! learn from then comes from motions chosen for them instead of whatever the robot happened to do.
 
+pub mod collision;
 pub mod design;
 pub mod fourier;
 pub mod information;
 pub mod write;
 
-pub use design::{Design, Options, design, design_with};
+pub use collision::SelfCollision;
+pub use design::{Design, Options, design, design_with, start_pose};
 pub use fourier::Fourier;
 
 #[derive(Debug, thiserror::Error)]
@@ -24,4 +26,11 @@ pub enum ExciteError {
     Write { file: String, source: std::io::Error },
     #[error(transparent)]
     Mcap(#[from] dynforge_shard::ShardError),
+    #[error("collision geometry: {0}")]
+    Mesh(#[from] dynforge_robot::collision::MeshError),
+    #[error(
+        "no collision-free motion found: every candidate drove {0} into each other (check the start pose, or \
+         loosen the limits)"
+    )]
+    Collision(String),
 }

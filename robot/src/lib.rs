@@ -16,6 +16,8 @@
 // `!(a < b)` is deliberate in the validators: it also rejects NaN. Index loops mirror the algorithms' notation.
 #![allow(clippy::neg_cmp_op_on_partial_ord, clippy::needless_range_loop)]
 
+#[cfg(feature = "collision")]
+pub mod collision;
 pub mod data;
 pub mod dynamics;
 pub mod generator;

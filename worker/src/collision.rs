@@ -4,9 +4,10 @@
 //!
 //! Adjacent bodies (pedestal-link 1, link k-link k+1) touch at their joint by construction and are not checked.
 
+use dynforge_robot::collision::pose;
 use dynforge_robot::generator::{GeneratedRobot, Section};
 use dynforge_robot::spatial::Se3;
-use parry3d_f64::math::{Mat3, Pose, Rot3, Vec3};
+use parry3d_f64::math::{Pose, Vec3};
 use parry3d_f64::query::intersection_test;
 use parry3d_f64::shape::{ConvexPolyhedron, Cuboid, Cylinder, Shape};
 
@@ -41,16 +42,6 @@ pub struct CollisionModel {
     pairs: Vec<(usize, usize)>,
     /// Height of the ground plane.
     ground_z: f64,
-}
-
-fn to_pose(x: &Se3) -> Pose {
-    let m = &x.rot;
-    let mat = Mat3::from_cols(
-        Vec3::new(m[(0, 0)], m[(1, 0)], m[(2, 0)]),
-        Vec3::new(m[(0, 1)], m[(1, 1)], m[(2, 1)]),
-        Vec3::new(m[(0, 2)], m[(1, 2)], m[(2, 2)]),
-    );
-    Pose::from_parts(Vec3::new(x.trans.x, x.trans.y, x.trans.z), Rot3::from_mat3(&mat).normalize())
 }
 
 /// A prism of `section` along +z from 0 to `length`, grown by `margin` in every direction.
@@ -100,9 +91,9 @@ impl CollisionModel {
     pub fn check(&self, o_m_i: &[Se3]) -> Option<Contact> {
         let pose = |body: usize| -> Pose {
             if body == 0 {
-                to_pose(&self.pedestal.offset)
+                pose(&self.pedestal.offset)
             } else {
-                to_pose(&o_m_i[body - 1].compose(&self.links[body - 1].offset))
+                pose(&o_m_i[body - 1].compose(&self.links[body - 1].offset))
             }
         };
         let shape = |body: usize| -> &dyn Shape {

@@ -38,14 +38,28 @@ pub fn parse(text: &str, source_name: &str) -> Result<Model, ModelError> {
 
 /// [`parse`], with the joints of `welds` welded at their positions (mimic joints not in it at 0).
 pub fn parse_welded(text: &str, source_name: &str, welds: &Welds) -> Result<Model, ModelError> {
+    build(&read(text, source_name)?, source_name, welds)
+}
+
+/// The collision geometry of every body of the model [`parse_welded`] gives, each in its body's frame: body 0 is the
+/// fixed base (the root link and everything welded to it), body k the model's link k with what is welded to it (a
+/// gripper's hand and fingers on the last link).
+pub fn collision_bodies(text: &str, source_name: &str, welds: &Welds) -> Result<Vec<Vec<Geometry>>, ModelError> {
+    let err = |problem| ModelError { source_name: source_name.to_string(), problem };
+    let robot = read(text, source_name)?;
+    let tree = Tree::of(&robot).map_err(err)?;
+    let (chain, base) = moving_chain(&tree, welds).map_err(err)?;
+    Ok(std::iter::once(base).chain(chain.into_iter().map(|m| m.geometry)).collect())
+}
+
+fn read(text: &str, source_name: &str) -> Result<urdf_rs::Robot, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
     // The XML reader recurses per element: 20,000 nested elements overflow its stack (an abort, not an error).
     if nesting_exceeds(text, MAX_NESTING) {
         return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
     }
-    let robot = urdf_rs::read_from_string(text)
-        .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
-    build(&robot, source_name, welds)
+    urdf_rs::read_from_string(text)
+        .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))
 }
 
 /// The joints of the URDF `text` that can move, in document order: those that are degrees of freedom of their own
@@ -165,7 +179,7 @@ fn build(robot: &urdf_rs::Robot, source_name: &str, welds: &Welds) -> Result<Mod
         return Err(err(ModelProblem::InvalidJoint { joint: name.clone(), reason: "no such joint to weld".into() }));
     }
     let tree = Tree::of(robot).map_err(err)?;
-    let chain = moving_chain(&tree, welds).map_err(err)?;
+    let (chain, _) = moving_chain(&tree, welds).map_err(err)?;
     let (joints, links) = chain.into_iter().map(Moving::into_joint_and_link).unzip();
     Model::new(source_name, robot.name.clone(), tree.root, joints, links)
 }
@@ -216,12 +230,14 @@ impl<'a> Tree<'a> {
     }
 }
 
-/// A moving joint and its link, with the inertia of the links welded to it by fixed joints.
+/// A moving joint and its link, with the inertia of the links welded to it by fixed joints, and the collision
+/// geometry of the link and of those welded to it.
 struct Moving {
     joint: Joint,
     link: Link,
     welded: Inertia,
     has_weld: bool,
+    geometry: Vec<Geometry>,
 }
 
 impl Moving {
@@ -234,9 +250,11 @@ impl Moving {
         } else {
             Pose::from_se3(&x.compose(origin))
         };
+        let link = convert_link(child);
         Moving {
             joint: convert_joint(j, origin_pose),
-            link: convert_link(child),
+            geometry: link.collisions.clone(),
+            link,
             welded: Inertia::ZERO,
             has_weld: false,
         }
@@ -258,6 +276,14 @@ impl Moving {
         }
         (self.joint, link)
     }
+}
+
+/// The collision geometry of the URDF link `link`, whose frame is at `x` in its body's frame, in the body's frame.
+fn placed_collisions(link: &urdf_rs::Link, x: &Se3) -> impl Iterator<Item = Geometry> {
+    link.collision.iter().map(move |c| {
+        let g = convert_geometry(&c.origin, &c.geometry);
+        Geometry { origin: Pose::from_se3(&x.compose(&g.origin.se3())), shape: g.shape }
+    })
 }
 
 /// The joint `j`'s motion at position `q` as a transform (its frame after the motion in its frame before).
@@ -283,8 +309,10 @@ fn weld_position(j: &urdf_rs::Joint, welds: &Welds) -> Option<f64> {
 
 /// The moving joints of `tree` in chain order, found by a walk from the root. On the walk's stack, `body` is the
 /// moving link a URDF link is welded to (None: the fixed base) and `x` the URDF link's frame in that body's frame.
-fn moving_chain(tree: &Tree, welds: &Welds) -> Result<Vec<Moving>, ModelProblem> {
+/// With the chain, the collision geometry of the fixed base.
+fn moving_chain(tree: &Tree, welds: &Welds) -> Result<(Vec<Moving>, Vec<Geometry>), ModelProblem> {
     let mut chain: Vec<Moving> = Vec::new();
+    let mut base: Vec<Geometry> = placed_collisions(tree.links[tree.root], &Se3::IDENTITY).collect();
     let mut moving_child_of: HashMap<Option<usize>, String> = HashMap::new();
     let mut stack: Vec<(&str, Option<usize>, Se3)> = vec![(tree.root, None, Se3::IDENTITY)];
     while let Some((link_name, body, x)) = stack.pop() {
@@ -293,6 +321,10 @@ fn moving_chain(tree: &Tree, welds: &Welds) -> Result<Vec<Moving>, ModelProblem>
             let child = tree.links[j.child.link.as_str()];
             if let Some(q) = weld_position(j, welds) {
                 let xc = x.compose(&origin).compose(&joint_motion(j, q));
+                match body {
+                    Some(b) => chain[b].geometry.extend(placed_collisions(child, &xc)),
+                    None => base.extend(placed_collisions(child, &xc)),
+                }
                 if let Some(b) = body
                     && child.inertial.mass.value > 0.0
                 {
@@ -317,7 +349,7 @@ fn moving_chain(tree: &Tree, welds: &Welds) -> Result<Vec<Moving>, ModelProblem>
             }
         }
     }
-    Ok(chain)
+    Ok((chain, base))
 }
 
 /// That the moving joint `j`, below the moving link `body` (None: the base, named `root`), continues the serial
