@@ -60,6 +60,14 @@ fn the_ur5s_excitation_keeps_its_limits_and_beats_random_multisines() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no covariance ratio in {printed}"));
     assert!(ratio >= 2.0, "{printed}");
+    // And at least 5x smaller than the dataset generator's waypoint tours for the same total time.
+    let tours: f64 = printed
+        .split("base covariance ")
+        .nth(2)
+        .and_then(|s| s.split('x').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no tour ratio in {printed}"));
+    assert!(tours >= 5.0 && printed.contains("waypoint tours'"), "{printed}");
 
     let mut data = Data::new(&model);
     for k in 0..2 {

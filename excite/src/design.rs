@@ -10,6 +10,7 @@ use crate::ExciteError;
 use crate::collision::SelfCollision;
 use crate::fourier::Fourier;
 use crate::information::{Base, Quality, add_rows, scales};
+use crate::tours::tour_information;
 
 /// What to design and within which limits.
 #[derive(Debug, Clone, PartialEq)]
@@ -63,6 +64,8 @@ pub struct Design {
     pub alone: Vec<Quality>,
     pub together: Quality,
     pub random_together: Quality,
+    /// The dataset generator's waypoint tours on this robot for the same total duration, if waypoints were found.
+    pub tours: Option<Quality>,
     /// Information of all trajectories together (scaled parameters), its base, and the scales.
     pub information: DMatrix<f64>,
     pub base: Base,
@@ -362,7 +365,16 @@ pub fn design_with(
         let per_trajectory = current.iter().map(|c| sampler.clearance(check, &series(&c.x))).collect();
         (per_trajectory, check.pairs())
     });
+    let tours = tour_information(
+        model,
+        collision,
+        &scales,
+        (options.count as f64 * options.duration, options.rate),
+        options.seed,
+    )
+    .map(|w| Quality::of(&base, &w));
     Ok(Design {
+        tours,
         clearance,
         alone: current.iter().map(|c| Quality::of(&base, &c.information)).collect(),
         together: Quality::of(&base, &information),

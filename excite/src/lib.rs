@@ -7,6 +7,7 @@ pub mod collision;
 pub mod design;
 pub mod fourier;
 pub mod information;
+pub mod tours;
 pub mod write;
 
 pub use collision::SelfCollision;

@@ -95,6 +95,17 @@ impl Default for PidGains {
     }
 }
 
+/// The minimum-jerk profile of a move of `duration` at time `t`: the share of the way covered, and its first and
+/// second time derivatives (`10 s^3 - 15 s^4 + 6 s^5`, `s = t / duration`; at rest before and after).
+pub fn minimum_jerk(t: f64, duration: f64) -> [f64; 3] {
+    let s = (t / duration).clamp(0.0, 1.0);
+    let moving = t > 0.0 && t < duration;
+    let p = s * s * s * (10.0 + s * (-15.0 + 6.0 * s));
+    let dp = if moving { 30.0 * s * s * (1.0 - s) * (1.0 - s) / duration } else { 0.0 };
+    let ddp = if moving { 60.0 * s * (1.0 - s) * (1.0 - 2.0 * s) / (duration * duration) } else { 0.0 };
+    [p, dp, ddp]
+}
+
 /// How waypoints and moves are drawn.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

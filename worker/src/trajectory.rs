@@ -124,11 +124,7 @@ impl Move {
 
     /// Reference position, velocity and acceleration at time `t`.
     pub fn reference(&self, t: f64) -> (Config6, Config6, Config6) {
-        let s = (t / self.duration).clamp(0.0, 1.0);
-        let moving = t < self.duration;
-        let p = s * s * s * (10.0 + s * (-15.0 + 6.0 * s));
-        let dp = if moving { 30.0 * s * s * (1.0 - s) * (1.0 - s) / self.duration } else { 0.0 };
-        let ddp = if moving { 60.0 * s * (1.0 - s) * (1.0 - 2.0 * s) / (self.duration * self.duration) } else { 0.0 };
+        let [p, dp, ddp] = dynforge_proto::sim::minimum_jerk(t, self.duration);
         let d: Config6 = std::array::from_fn(|j| self.goal[j] - self.start[j]);
         (
             std::array::from_fn(|j| self.start[j] + d[j] * p),
