@@ -343,9 +343,11 @@ pub fn design_with(
         period: options.duration,
         harmonics: options.harmonics,
     };
+    // So is self-collision: at 1 kHz a point of the arm moves millimetres between samples, so what passes there
+    // passes in between; a motion that grazes a body between the search's samples is shrunk off it.
     for c in current.iter_mut() {
         for _ in 0..50 {
-            if dense.sample(&series(&c.x), false).1[3] <= 1.0 {
+            if dense.sample(&series(&c.x), false).1[3] <= 1.0 && dense.contact(&series(&c.x)).is_none() {
                 break;
             }
             c.x.iter_mut().for_each(|v| *v *= 0.99);
@@ -354,7 +356,6 @@ pub fn design_with(
         if c.peaks[3] > 1.0 {
             return Err(ExciteError::Infeasible);
         }
-        // At 1 kHz a point of the arm moves millimetres between samples: what passes here passes in between.
         if let (Some(pair), Some(check)) = (dense.contact(&series(&c.x)), collision) {
             return Err(ExciteError::Collision(check.describe(pair)));
         }

@@ -29,9 +29,6 @@ pub enum ExciteError {
     Mcap(#[from] dynforge_shard::ShardError),
     #[error("collision geometry: {0}")]
     Mesh(#[from] dynforge_robot::collision::MeshError),
-    #[error(
-        "no collision-free motion found: every candidate drove {0} into each other (check the start pose, or \
-         loosen the limits)"
-    )]
+    #[error("no collision-free motion found: {0} kept touching (check the start pose, or loosen the limits)")]
     Collision(String),
 }
