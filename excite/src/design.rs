@@ -198,22 +198,47 @@ impl Sampler<'_> {
     /// `c`, or `c` shrunk towards the start pose (by steps of a fifth, at most 8) until no checked bodies touch
     /// along it; `Err` with the last pair in contact (`None`: the shrunk motion left the bounds).
     fn free(&mut self, mut c: Candidate) -> Result<Candidate, Option<(usize, usize)>> {
-        let (start, harmonics) = (self.bounds.start.clone(), self.harmonics);
-        let series = |x: &[f64], period: f64| Fourier::from_free(period, &start, harmonics, x);
         let mut contact = None;
         for _ in 0..8 {
-            contact = self.contact(&series(&c.x, self.period));
+            contact = self.contact(&self.series(&c.x));
             if contact.is_none() {
                 return Ok(c);
             }
             let x: Vec<f64> = c.x.iter().map(|v| 0.8 * v).collect();
-            let (information, peaks) = self.sample(&series(&x, self.period), true);
+            let (information, peaks) = self.sample(&self.series(&x), true);
             if peaks.iter().any(|&p| p > 1.0 + 1e-9) {
                 return Err(None);
             }
             c = Candidate { x, information, peaks };
         }
         Err(contact)
+    }
+
+    /// The series of free coefficients `x`.
+    fn series(&self, x: &[f64]) -> Fourier {
+        Fourier::from_free(self.period, &self.bounds.start, self.harmonics, x)
+    }
+
+    /// `c` shrunk by steps of 1 % (at most 50) until, at this sampler's rate, its effort keeps the bounds and no
+    /// checked bodies touch (a motion that grazes a body between coarser samples is shrunk off it); its peaks at
+    /// this rate.
+    fn settle(&mut self, c: &mut Candidate) -> Result<(), ExciteError> {
+        for _ in 0..50 {
+            let f = self.series(&c.x);
+            if self.sample(&f, false).1[3] <= 1.0 && self.contact(&f).is_none() {
+                break;
+            }
+            c.x.iter_mut().for_each(|v| *v *= 0.99);
+        }
+        let f = self.series(&c.x);
+        c.peaks = self.sample(&f, false).1;
+        if c.peaks[3] > 1.0 {
+            return Err(ExciteError::Infeasible);
+        }
+        match (self.contact(&f), self.collision) {
+            (Some(pair), Some(check)) => Err(ExciteError::Collision(check.describe(pair))),
+            _ => Ok(()),
+        }
     }
 
     /// The smallest distance between `check`'s pairs along `f` at this sampler's rate, and the pair's names.
@@ -297,28 +322,9 @@ pub fn design_with(
         period: options.duration,
         harmonics: options.harmonics,
     };
-    let dims = model.dof() * Fourier::free_per_joint(options.harmonics);
     let p = scales.len();
-    let series = |x: &[f64]| Fourier::from_free(options.duration, &bounds.start, options.harmonics, x);
     let sum = |c: &[Candidate]| c.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
-
-    // Random starts, one per trajectory, fitted into the bounds and free of collisions; their information together
-    // fixes the base.
-    let mut current = Vec::with_capacity(options.count);
-    let mut last_contact = None;
-    for k in 0..options.count {
-        let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
-        let fitted = (0..20).find_map(|_| {
-            let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
-            let c = sampler.fit(&x, options.harmonics, options.duration)?;
-            sampler.free(c).map_err(|pair| last_contact = pair).ok()
-        });
-        let why = || match (last_contact, collision) {
-            (Some(pair), Some(c)) => ExciteError::Collision(c.describe(pair)),
-            _ => ExciteError::Infeasible,
-        };
-        current.push(fitted.ok_or_else(why)?);
-    }
+    let mut current = random_starts(&mut sampler, options)?;
     let random_information = sum(&current);
     let base = Base::of(&random_information);
     let random_together = Quality::of(&base, &random_information);
@@ -330,40 +336,24 @@ pub fn design_with(
         let report = |e: usize| progress(k * options.evaluations + e, options.count * options.evaluations);
         current[k] = improve(&mut sampler, options, &base, &others, current[k].clone(), &mut rng, report);
     }
-    // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at) and the
-    // motion shrunk until it fits there too.
+    // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at), and so is
+    // self-collision: a point of the arm moves millimetres between samples there, so what passes there passes in
+    // between.
     let mut dense = Sampler {
-        model,
-        bounds: &bounds,
-        scales: sampler.scales.clone(),
-        nominal: sampler.nominal.clone(),
         samples: (options.duration * DENSE_RATE).ceil() as usize,
         data: Data::new(model),
-        collision,
-        period: options.duration,
-        harmonics: options.harmonics,
+        scales: sampler.scales.clone(),
+        nominal: sampler.nominal.clone(),
+        ..sampler
     };
-    // So is self-collision: at 1 kHz a point of the arm moves millimetres between samples, so what passes there
-    // passes in between; a motion that grazes a body between the search's samples is shrunk off it.
     for c in current.iter_mut() {
-        for _ in 0..50 {
-            if dense.sample(&series(&c.x), false).1[3] <= 1.0 && dense.contact(&series(&c.x)).is_none() {
-                break;
-            }
-            c.x.iter_mut().for_each(|v| *v *= 0.99);
-        }
-        c.peaks = dense.sample(&series(&c.x), false).1;
-        if c.peaks[3] > 1.0 {
-            return Err(ExciteError::Infeasible);
-        }
-        if let (Some(pair), Some(check)) = (dense.contact(&series(&c.x)), collision) {
-            return Err(ExciteError::Collision(check.describe(pair)));
-        }
-        c.information = sampler.sample(&series(&c.x), true).0;
+        dense.settle(c)?;
+        let f = sampler.series(&c.x);
+        c.information = sampler.sample(&f, true).0;
     }
     let information = sum(&current);
     let clearance = collision.map(|check| {
-        let per_trajectory = current.iter().map(|c| sampler.clearance(check, &series(&c.x))).collect();
+        let per_trajectory = current.iter().map(|c| sampler.clearance(check, &sampler.series(&c.x))).collect();
         (per_trajectory, check.pairs())
     });
     let tours = tour_information(
@@ -381,11 +371,33 @@ pub fn design_with(
         together: Quality::of(&base, &information),
         random_together,
         peaks: current.iter().map(|c| c.peaks).collect(),
-        trajectories: current.iter().map(|c| series(&c.x)).collect(),
+        trajectories: current.iter().map(|c| sampler.series(&c.x)).collect(),
         information,
         base,
         scales,
     })
+}
+
+/// Random starts, one per trajectory, fitted into the bounds and free of collisions: their information together
+/// fixes the base.
+fn random_starts(sampler: &mut Sampler<'_>, options: &Options) -> Result<Vec<Candidate>, ExciteError> {
+    let dims = sampler.model.dof() * Fourier::free_per_joint(options.harmonics);
+    let mut current = Vec::with_capacity(options.count);
+    let mut last_contact = None;
+    for k in 0..options.count {
+        let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
+        let fitted = (0..20).find_map(|_| {
+            let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
+            let c = sampler.fit(&x, options.harmonics, options.duration)?;
+            sampler.free(c).map_err(|pair| last_contact = pair).ok()
+        });
+        let why = || match (last_contact, sampler.collision) {
+            (Some(pair), Some(c)) => ExciteError::Collision(c.describe(pair)),
+            _ => ExciteError::Infeasible,
+        };
+        current.push(fitted.ok_or_else(why)?);
+    }
+    Ok(current)
 }
 
 /// A set of free coefficients kept within the bounds, with its information and peaks.
