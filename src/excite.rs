@@ -6,7 +6,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_excite::write::{summary, write_design};
 use dynforge_excite::{Options, SelfCollision, design_with, start_pose};
-use dynforge_proto::flags::{positive, weld, whole};
+use dynforge_proto::flags::{non_negative, positive, weld, whole};
 use dynforge_robot::urdf;
 
 #[derive(Args)]
@@ -50,6 +50,9 @@ pub struct ExciteArgs {
     /// Weld this joint (a gripper's, say) at a position: NAME or NAME=POSITION (default 0); repeatable.
     #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
     fix: Vec<(String, f64)>,
+    /// Distance [m] below which two bodies of the arm count as touching (padding on top of the convex hulls).
+    #[arg(long, default_value_t = 0.0, value_parser = non_negative)]
+    clearance: f64,
     /// Do not check self-collision (for a URDF whose collision meshes cannot be read: only STL is; `package://` is
     /// looked for in ROS_PACKAGE_PATH, AMENT_PREFIX_PATH and above the URDF).
     #[arg(long)]
@@ -82,7 +85,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
         false => {
             let geometry = urdf::collision_bodies(&text, &args.urdf.display().to_string(), &welds)?;
             let start = start_pose(&model, &options)?;
-            Some(SelfCollision::new(&model, &geometry, &args.urdf, &start)?)
+            Some(SelfCollision::new(&model, &geometry, &args.urdf, &start, args.clearance)?)
         }
     };
     let design = design_with(&model, &options, collision.as_ref(), |done, total| {

@@ -220,6 +220,16 @@ fn the_design_is_free_of_self_collision_by_pinocchios_account() {
     assert!(printed.contains("free of self-collision (3 body pairs checked"), "{printed}");
     let report = std::fs::read_to_string(tmp.path().join("checked/report.md")).unwrap();
     assert!(report.contains("Self-collision: checked"), "{report}");
+    // With a padding of 2 cm the bodies keep that far apart (the upper arm starts 5 cm above the column).
+    let (_, padded) = check(&tmp.path().join("padded"), &["--clearance", "0.02"]);
+    assert_eq!(padded["colliding"], serde_json::json!([0, 0]), "{padded}");
+    let report = std::fs::read_to_string(tmp.path().join("padded/report.md")).unwrap();
+    let closest: Vec<f64> = report
+        .lines()
+        .filter_map(|l| l.strip_prefix("- trajectory ").and_then(|l| l.split(": ").nth(1)))
+        .filter_map(|l| l.split(" mm").next().and_then(|v| v.parse().ok()))
+        .collect();
+    assert!(closest.len() == 2 && closest.iter().all(|&d| d >= 20.0), "{report}");
     let (_, unchecked) = check(&tmp.path().join("unchecked"), &["--no-collision"]);
     let hits: u64 = unchecked["colliding"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap()).sum();
     assert!(hits > 0, "without the check the motion hits the column: {unchecked}");

@@ -17,12 +17,20 @@ pub struct SelfCollision {
     bodies: Vec<Vec<Placed>>,
     names: Vec<String>,
     pairs: Vec<(usize, usize)>,
+    /// Distance below which two bodies count as touching [m] (MoveIt's padding).
+    clearance: f64,
 }
 
 impl SelfCollision {
     /// The bodies of `model` from `geometry` (`dynforge_robot::urdf::collision_bodies` of the URDF at `urdf`), with
-    /// the pairs that are apart at the pose `start`.
-    pub fn new(model: &Model, geometry: &[Vec<Geometry>], urdf: &Path, start: &[f64]) -> Result<Self, ExciteError> {
+    /// the pairs that are apart at the pose `start`; bodies closer than `clearance` [m] count as touching.
+    pub fn new(
+        model: &Model,
+        geometry: &[Vec<Geometry>],
+        urdf: &Path,
+        start: &[f64],
+        clearance: f64,
+    ) -> Result<Self, ExciteError> {
         let bodies = geometry
             .iter()
             .map(|g| g.iter().map(|g| shape_of(g, urdf)).collect::<Result<Vec<_>, _>>())
@@ -34,7 +42,7 @@ impl SelfCollision {
             .flat_map(|a| (a + 2..n).map(move |b| (a, b)))
             .filter(|&(a, b)| !geometry[a].is_empty() && !geometry[b].is_empty())
             .collect();
-        let mut c = SelfCollision { bodies, names, pairs: candidates };
+        let mut c = SelfCollision { bodies, names, pairs: candidates, clearance };
         let mut data = Data::new(model);
         let at_start = c.contacts(model, &mut data, start);
         c.pairs.retain(|p| !at_start.contains(p));
@@ -44,6 +52,11 @@ impl SelfCollision {
     /// Pairs checked, and pairs left out because they touch at the start pose.
     pub fn pairs(&self) -> usize {
         self.pairs.len()
+    }
+
+    /// The distance below which bodies count as touching [m].
+    pub fn padding(&self) -> f64 {
+        self.clearance
     }
 
     /// Names of bodies `a` and `b`.
@@ -93,10 +106,16 @@ impl SelfCollision {
         best
     }
 
+    /// Whether bodies `a` and `b` are closer than the clearance (touching when it is 0). Unsupported shape pairs do
+    /// not occur among primitives and convex hulls; they would count as touching.
     fn touch(&self, at: &[Vec<parry3d_f64::math::Pose>], a: usize, b: usize) -> bool {
         self.bodies[a].iter().zip(&at[a]).any(|(sa, pa)| {
             self.bodies[b].iter().zip(&at[b]).any(|(sb, pb)| {
-                intersection_test(pa, sa.shape.as_ref(), pb, sb.shape.as_ref()).map_or(true, |r| r.intersecting)
+                let (sa, sb) = (sa.shape.as_ref(), sb.shape.as_ref());
+                match self.clearance > 0.0 {
+                    true => distance(pa, sa, pb, sb).map_or(true, |d| d.distance < self.clearance),
+                    false => intersection_test(pa, sa, pb, sb).map_or(true, |r| r.intersecting),
+                }
             })
         })
     }

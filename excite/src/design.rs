@@ -73,8 +73,8 @@ pub struct Design {
     /// Per trajectory the peaks reached, as shares of the limits: position, velocity, acceleration, effort.
     pub peaks: Vec<[f64; 4]>,
     /// When self-collision was checked: per trajectory the smallest distance between checked bodies [m] and the
-    /// pair's names, and the number of pairs checked.
-    pub clearance: Option<(Vec<(f64, String)>, usize)>,
+    /// pair's names, the number of pairs checked and the padding kept [m].
+    pub clearance: Option<(Vec<(f64, String)>, usize, f64)>,
 }
 
 /// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
@@ -354,7 +354,7 @@ pub fn design_with(
     let information = sum(&current);
     let clearance = collision.map(|check| {
         let per_trajectory = current.iter().map(|c| sampler.clearance(check, &sampler.series(&c.x))).collect();
-        (per_trajectory, check.pairs())
+        (per_trajectory, check.pairs(), check.padding())
     });
     let tours = tour_information(
         model,

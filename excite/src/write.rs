@@ -83,7 +83,7 @@ pub fn write_design(
 pub fn summary(model: &Model, design: &Design, options: &Options) -> String {
     let (d, r) = (&design.together, &design.random_together);
     let collision = match &design.clearance {
-        Some((per_trajectory, pairs)) => {
+        Some((per_trajectory, pairs, _)) => {
             let (closest, pair) = per_trajectory
                 .iter()
                 .min_by(|a, b| a.0.total_cmp(&b.0))
@@ -164,12 +164,14 @@ pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> 
         let _ = writeln!(out, "- trajectory {k}: {:.2} / {:.2} / {:.2} / {:.2}", p[0], p[1], p[2], p[3]);
     }
     match &design.clearance {
-        Some((per_trajectory, pairs)) => {
+        Some((per_trajectory, pairs, padding)) => {
             let _ = writeln!(
                 out,
                 "\nSelf-collision: checked with the URDF's collision geometry (meshes as their convex hulls, which only \
-                 add volume) at 1 kHz, {pairs} pairs of bodies (bodies joined by one joint, and bodies touching at \
-                 the start pose, are not checked). Smallest distance between checked bodies:\n"
+                 add volume) at 1 kHz, {pairs} pairs of bodies kept at least {:.1} mm apart (bodies joined by one \
+                 joint, and bodies that close at the start pose, are not checked). Smallest distance between checked \
+                 bodies:\n",
+                1e3 * padding
             );
             for (k, (d, pair)) in per_trajectory.iter().enumerate() {
                 let _ = writeln!(out, "- trajectory {k}: {:.1} mm ({pair})", 1e3 * d);

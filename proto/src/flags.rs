@@ -41,6 +41,14 @@ pub fn positive(s: &str) -> Result<f64, FlagError> {
     }
 }
 
+/// A finite number of at least 0.
+pub fn non_negative(s: &str) -> Result<f64, FlagError> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v >= 0.0 && v.is_finite() => Ok(v),
+        _ => Err("expected a finite number of at least 0".into()),
+    }
+}
+
 /// A share strictly between 0 and 1 (a validation split: both sides must have something).
 pub fn share(s: &str) -> Result<f64, FlagError> {
     match s.trim().parse::<f64>() {
@@ -76,6 +84,8 @@ mod tests {
         for bad in ["nan", "inf", "-1", "0", "x"] {
             assert!(positive(bad).is_err(), "{bad}");
         }
+        assert_eq!(non_negative("0"), Ok(0.0));
+        assert!(non_negative("-1e-3").is_err() && non_negative("inf").is_err());
         assert_eq!(share("0.2"), Ok(0.2));
         for bad in ["0", "1", "nan", "-0.1", "x"] {
             assert!(share(bad).is_err(), "{bad}");
