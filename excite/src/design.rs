@@ -72,9 +72,19 @@ pub struct Design {
     pub scales: Vec<f64>,
     /// Per trajectory the peaks reached, as shares of the limits: position, velocity, acceleration, effort.
     pub peaks: Vec<[f64; 4]>,
-    /// When self-collision was checked: per trajectory the smallest distance between checked bodies [m] and the
-    /// pair's names, the number of pairs checked and the padding kept [m].
-    pub clearance: Option<(Vec<(f64, String)>, usize, f64)>,
+    /// When self-collision was checked: how far apart the bodies stayed.
+    pub clearance: Option<Clearance>,
+}
+
+/// How far apart a design keeps the robot's bodies.
+#[derive(Debug, Clone)]
+pub struct Clearance {
+    /// Per trajectory the smallest distance between checked bodies [m] and the pair's names.
+    pub closest: Vec<(f64, String)>,
+    /// Pairs of bodies checked.
+    pub pairs: usize,
+    /// The distance below which bodies counted as touching [m].
+    pub padding: f64,
 }
 
 /// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
@@ -353,8 +363,8 @@ pub fn design_with(
     }
     let information = sum(&current);
     let clearance = collision.map(|check| {
-        let per_trajectory = current.iter().map(|c| sampler.clearance(check, &sampler.series(&c.x))).collect();
-        (per_trajectory, check.pairs(), check.padding())
+        let closest = current.iter().map(|c| sampler.clearance(check, &sampler.series(&c.x))).collect();
+        Clearance { closest, pairs: check.pairs(), padding: check.padding() }
     });
     let tours = tour_information(
         model,

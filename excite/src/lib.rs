@@ -11,7 +11,7 @@ pub mod tours;
 pub mod write;
 
 pub use collision::SelfCollision;
-pub use design::{Design, Options, design, design_with, start_pose};
+pub use design::{Clearance, Design, Options, design, design_with, start_pose};
 pub use fourier::Fourier;
 
 #[derive(Debug, thiserror::Error)]

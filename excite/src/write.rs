@@ -83,8 +83,10 @@ pub fn write_design(
 pub fn summary(model: &Model, design: &Design, options: &Options) -> String {
     let (d, r) = (&design.together, &design.random_together);
     let collision = match &design.clearance {
-        Some((per_trajectory, pairs, _)) => {
-            let (closest, pair) = per_trajectory
+        Some(c) => {
+            let pairs = c.pairs;
+            let (closest, pair) = c
+                .closest
                 .iter()
                 .min_by(|a, b| a.0.total_cmp(&b.0))
                 .map_or((f64::INFINITY, ""), |(d, p)| (*d, p.as_str()));
@@ -164,7 +166,8 @@ pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> 
         let _ = writeln!(out, "- trajectory {k}: {:.2} / {:.2} / {:.2} / {:.2}", p[0], p[1], p[2], p[3]);
     }
     match &design.clearance {
-        Some((per_trajectory, pairs, padding)) => {
+        Some(c) => {
+            let (per_trajectory, pairs, padding) = (&c.closest, c.pairs, c.padding);
             let _ = writeln!(
                 out,
                 "\nSelf-collision: checked with the URDF's collision geometry (meshes as their convex hulls, which only \
