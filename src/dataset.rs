@@ -2,6 +2,7 @@
 //! its training cache built ahead of training, and its shards pruned once cached (`prepare`).
 
 use std::path::PathBuf;
+use std::sync::atomic::Ordering;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
@@ -10,12 +11,8 @@ use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::prepare::{ModelKind, prepare};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_dataset::windows::{AROUND_THE_BEST, stats};
-
-use std::sync::atomic::Ordering;
-
-use dynforge_trainer::training::session::SessionObserver;
-
 use dynforge_display::{Bars, STOP, catch_interrupts};
+use dynforge_trainer::training::session::SessionObserver;
 
 #[derive(Subcommand)]
 pub enum DatasetCommand {
@@ -61,10 +58,11 @@ pub struct InfoArgs {
 }
 
 pub fn info(args: InfoArgs) -> Result<()> {
-    let info = dynforge_recording::info::Info::of(&args.log)?;
+    let (files, bag) = dynforge_recording::read_bag(&args.log)?;
+    let info = dynforge_recording::info::Info::of_bag(&args.log, &files, &bag)?;
     print!("{info}");
     let described = matches!(info.robot, Some(Ok(_)));
-    print!("{}", dynforge_identify::calibrate::Readiness::of(&args.log, described));
+    print!("{}", dynforge_identify::calibrate::Readiness::of(files, bag, described));
     Ok(())
 }
 

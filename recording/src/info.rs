@@ -2,9 +2,11 @@
 //! for a dataset shard, its job and labels. It reads the file as identification would, so a log `info` describes
 //! without complaint is one `identify` and `estimate` accept as far as the file goes.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use dynforge_proto::shard::{META_JOB, META_LABELS};
+
+use dynforge_shard::Bag;
 
 use crate::read::{Gap, ReadError, first_gap, read_bag};
 
@@ -43,6 +45,11 @@ impl Info {
     /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
     pub fn of(path: &Path) -> Result<Info, ReadError> {
         let (files, bag) = read_bag(path)?;
+        Info::of_bag(path, &files, &bag)
+    }
+
+    /// [`Info::of`] of a log already read: its `files` and their messages `bag`.
+    pub fn of_bag(path: &Path, files: &[PathBuf], bag: &Bag) -> Result<Info, ReadError> {
         let check = match crate::dataset::recorded_hash(&files[0]) {
             Some(recorded) if files.len() == 1 => {
                 let bytes = std::fs::read(&files[0])
@@ -78,7 +85,7 @@ impl Info {
             span,
             joints: bag.joint_states.first().map(|m| m.name.to_vec()).unwrap_or_default(),
             robot,
-            metadata: bag.metadata.into_iter().map(|(k, v)| (k, v.into_iter().collect())).collect(),
+            metadata: bag.metadata.iter().map(|(k, v)| (k.clone(), v.clone().into_iter().collect())).collect(),
             gaps,
             check,
         })

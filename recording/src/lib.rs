@@ -16,8 +16,9 @@ mod read;
 pub mod resample;
 pub mod samples;
 
+pub use dynforge_shard::Bag;
 pub use read::{
     GRID_DT, Gap, ReadError, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,
-    robot_document,
+    recording_of, robot_document,
 };
 pub use samples::JointTrajectory;

@@ -63,6 +63,17 @@ impl Log {
 /// logged position.
 pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -> Result<Log, ReadError> {
     let (files, bag) = read_bag(path)?;
+    log_of(files, bag, document, fixed)
+}
+
+/// [`read_log`] of a log already read: its `files` and their messages `bag` (consumed: an hour's messages take
+/// gigabytes, freed before the segments are cut).
+pub fn log_of(
+    files: Vec<PathBuf>,
+    bag: Bag,
+    document: Option<(&str, &str)>,
+    fixed: &[String],
+) -> Result<Log, ReadError> {
     let file = files[0].display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let (document, source) = match (document, &bag.robot_description) {

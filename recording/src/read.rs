@@ -128,17 +128,17 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
 /// `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
     let (files, bag) = read_bag(path)?;
-    recording(&files[0], bag, model)
+    recording_of(&files[0], &bag, model)
 }
 
 /// [`read`] of a shard already in memory (`bytes`, the content of the file `path`), for readers that check the bytes
 /// themselves (against a run's ledger) before trusting them.
 pub fn read_shard_bytes(bytes: &[u8], path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
-    recording(path, dynforge_shard::read_bytes(bytes, path)?, model)
+    recording_of(path, &dynforge_shard::read_bytes(bytes, path)?, model)
 }
 
-/// The recording of `bag`, read from `path` (its first file).
-fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Result<Recording, ReadError> {
+/// The recording of `bag`, read from `path` (its first file): [`read`] of a log already read.
+pub fn recording_of(path: &Path, bag: &dynforge_shard::Bag, model: Option<&Model>) -> Result<Recording, ReadError> {
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let model = match (model, &bag.robot_description) {
@@ -149,7 +149,7 @@ fn recording(path: &Path, bag: dynforge_shard::Bag, model: Option<&Model>) -> Re
         (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
     };
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
-    let samples = from_bag(&bag, &names, path)?;
+    let samples = from_bag(bag, &names, path)?;
     // Put on the grid whole, a stretch between two stamps a day apart would be 86 million interpolated samples.
     if let Some(gap) = first_gap(&samples.t) {
         return Err(content(format!(

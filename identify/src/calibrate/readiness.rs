@@ -1,9 +1,10 @@
 //! Which commands can take a log, and why not: what `dynforge info` says beside the log's summary, found by reading
 //! the log the way each command does (so what it says is what the command will do).
 
-use std::path::Path;
+use std::path::PathBuf;
 
-use dynforge_recording::log::{read_log, still_joints};
+use dynforge_recording::log::{Log, log_of, still_joints};
+use dynforge_recording::{Bag, recording_of};
 
 use super::MIN_ROWS;
 use crate::REST_SPEED;
@@ -20,19 +21,21 @@ pub struct Readiness {
 }
 
 impl Readiness {
-    /// Reads the log at `path` as each command would; `described` says whether it has a `/robot_description` (else
-    /// both need the robot's URDF, and what they would read depends on it).
-    pub fn of(path: &Path, described: bool) -> Readiness {
+    /// What each command would make of the log whose `files` hold the messages `bag` (read once by the caller);
+    /// `described` says whether it has a `/robot_description` (else both need the robot's URDF, and what they would
+    /// read depends on it).
+    pub fn of(files: Vec<PathBuf>, bag: Bag, described: bool) -> Readiness {
         if !described {
             let why = "the log has no readable /robot_description: give the robot's URDF with --urdf".to_string();
             return Readiness { identify: Err(why.clone()), estimate: Err(why) };
         }
-        Readiness { identify: identify(path), estimate: estimate(path) }
+        let estimate = estimate(&files, &bag);
+        let identify = log_of(files, bag, None, &[]).map_err(|e| e.to_string()).and_then(identify);
+        Readiness { identify, estimate }
     }
 }
 
-fn identify(path: &Path) -> Result<String, String> {
-    let log = read_log(path, None, &[]).map_err(|e| e.to_string())?;
+fn identify(log: Log) -> Result<String, String> {
     let logs = [log];
     let still = still_joints(&logs);
     if !still.is_empty() {
@@ -93,8 +96,8 @@ fn identify(path: &Path) -> Result<String, String> {
     Ok(said)
 }
 
-fn estimate(path: &Path) -> Result<String, String> {
-    let rec = dynforge_recording::read(path, None).map_err(|e| e.to_string())?;
+fn estimate(files: &[PathBuf], bag: &Bag) -> Result<String, String> {
+    let rec = recording_of(&files[0], bag, None).map_err(|e| e.to_string())?;
     Ok(format!(
         "a {}-joint robot, {:.1} s of motion: with a model trained on its family (dynforge estimate --checkpoint RUN)",
         rec.model.dof(),
