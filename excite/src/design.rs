@@ -270,13 +270,12 @@ impl Sampler<'_> {
     /// The series of free coefficients `x` scaled so that it keeps every bound (kinematic peaks scale with the
     /// coefficients; the effort, with gravity in it, does not: it is shrunk by steps until it fits), with its
     /// information and peaks; `None` when even a tenth of it would not fit (the pose alone needs more effort).
-    fn fit(&mut self, x: &[f64], harmonics: usize, period: f64) -> Option<Candidate> {
-        let series = |x: &[f64]| Fourier::from_free(period, &self.bounds.start, harmonics, x);
-        let (_, peaks) = self.sample(&series(x), false);
+    fn fit(&mut self, x: &[f64]) -> Option<Candidate> {
+        let (_, peaks) = self.sample(&self.series(x), false);
         // Between samples a trigonometric polynomial of degree N sampled M > 2N times per period rises at most by
         // sec(pi N / M) over its largest sample (Ehlich and Zeller, 1964): so the kinematic bounds hold at every
         // instant, not only at the samples.
-        let between = 1.0 / (std::f64::consts::PI * harmonics as f64 / self.samples as f64).cos();
+        let between = 1.0 / (std::f64::consts::PI * self.harmonics as f64 / self.samples as f64).cos();
         let kinematic = peaks[0].max(peaks[1]).max(peaks[2]) * between;
         if !(kinematic > 0.0 && kinematic.is_finite()) {
             return None;
@@ -284,7 +283,7 @@ impl Sampler<'_> {
         let mut scale = 1.0 / kinematic;
         for _ in 0..24 {
             let xs: Vec<f64> = x.iter().map(|v| v * scale).collect();
-            let (w, peaks) = self.sample(&series(&xs), true);
+            let (w, peaks) = self.sample(&self.series(&xs), true);
             if peaks.iter().all(|&p| p <= 1.0 + 1e-9) {
                 return Some(Candidate { x: xs, information: w, peaks });
             }
@@ -398,7 +397,7 @@ fn random_starts(sampler: &mut Sampler<'_>, options: &Options) -> Result<Vec<Can
         let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
         let fitted = (0..20).find_map(|_| {
             let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
-            let c = sampler.fit(&x, options.harmonics, options.duration)?;
+            let c = sampler.fit(&x)?;
             sampler.free(c).map_err(|pair| last_contact = pair).ok()
         });
         let why = || match (last_contact, sampler.collision) {
@@ -460,16 +459,17 @@ fn improve(
         }
         let size = best.x.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
         let x: Vec<f64> = best.x.iter().map(|v| v + step * size * rng.normal()).collect();
-        // The collision check costs more than the judging: only a candidate that would be kept is checked (a
-        // shrunk one is judged again).
+        // The collision check costs more than the judging: only a candidate that would be kept is checked, and the
+        // one it leaves (shrunk if it touched) is judged again.
         let kept = sampler
-            .fit(&x, options.harmonics, options.duration)
+            .fit(&x)
             .filter(|c| judge(&c.information) > best_value)
             .and_then(|c| sampler.free(c).ok())
-            .filter(|c| judge(&c.information) > best_value);
+            .map(|c| (judge(&c.information), c))
+            .filter(|(value, _)| *value > best_value);
         match kept {
-            Some(candidate) => {
-                best_value = judge(&candidate.information);
+            Some((value, candidate)) => {
+                best_value = value;
                 best = candidate;
                 step = (step * 1.5).min(2.0);
             }
