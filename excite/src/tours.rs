@@ -3,7 +3,7 @@
 //! path, minimum-jerk moves at half the speed limit, each held 2 s) run for the design's total duration. The
 //! waypoints' seed is the design's.
 
-use dynforge_proto::sim::{TrajectoryConfig, minimum_jerk};
+use dynforge_proto::sim::{TrajectoryConfig, minimum_jerk, straight_path_free};
 use dynforge_robot::rng::Rng;
 use dynforge_robot::{Data, Model, regressor};
 use nalgebra::{DMatrix, DVector};
@@ -30,9 +30,8 @@ pub fn tour_information(
             .joints()
             .iter()
             .map(|j| {
-                let l = &j.limits;
-                let (lo, hi) = (l.lower.max(-std::f64::consts::PI), l.upper.min(std::f64::consts::PI));
-                rng.uniform(lo + cfg.limit_margin, hi - cfg.limit_margin)
+                let (lo, hi) = cfg.waypoint_range(j.limits.lower, j.limits.upper);
+                rng.uniform(lo, hi)
             })
             .collect()
     };
@@ -42,12 +41,11 @@ pub fn tour_information(
     let (mut elapsed, mut from) = (0.0, None::<Vec<f64>>);
     while elapsed < total {
         let to = (0..cfg.max_attempts).map(|_| draw(&mut rng)).find(|q| {
-            free(q, &mut data) && from.as_ref().is_none_or(|a| path_free(a, q, cfg.path_step, |q| free(q, &mut data)))
+            free(q, &mut data)
+                && from.as_ref().is_none_or(|a| straight_path_free(a, q, cfg.path_step, |q| free(q, &mut data)))
         })?;
         let Some(a) = from.replace(to.clone()) else { continue };
-        let duration = (0..n)
-            .map(|j| 1.875 * (to[j] - a[j]).abs() / (cfg.speed_fraction * model.joints()[j].limits.velocity))
-            .fold(cfg.min_move, f64::max);
+        let duration = cfg.move_duration((0..n).map(|j| (to[j] - a[j], model.joints()[j].limits.velocity)));
         let steps = ((duration + cfg.hold).min(total - elapsed) * rate).round() as usize;
         let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         for k in 0..steps {
@@ -61,16 +59,4 @@ pub fn tour_information(
         elapsed += duration + cfg.hold;
     }
     Some(w)
-}
-
-/// Both ends of the straight joint-space path from `a` to `b`, and points on it no more than `step` apart, are
-/// `free`.
-fn path_free(a: &[f64], b: &[f64], step: f64, mut free: impl FnMut(&[f64]) -> bool) -> bool {
-    let span = a.iter().zip(b).map(|(x, y)| (y - x).abs()).fold(0.0, f64::max);
-    let m = (span / step).ceil().max(1.0) as usize;
-    (0..=m).all(|k| {
-        let s = k as f64 / m as f64;
-        let q: Vec<f64> = a.iter().zip(b).map(|(x, y)| x + s * (y - x)).collect();
-        free(&q)
-    })
 }

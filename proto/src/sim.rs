@@ -142,3 +142,33 @@ impl Default for TrajectoryConfig {
         }
     }
 }
+
+impl TrajectoryConfig {
+    /// The interval a joint with position limits `[lower, upper]` draws its waypoints from: within half a turn of 0,
+    /// `limit_margin` inside the limits.
+    pub fn waypoint_range(&self, lower: f64, upper: f64) -> (f64, f64) {
+        let (lo, hi) = (lower.max(-std::f64::consts::PI), upper.min(std::f64::consts::PI));
+        (lo + self.limit_margin, hi - self.limit_margin)
+    }
+
+    /// Duration of a move given per joint as (distance, speed limit): the minimum-jerk peak speed `1.875 |dq| / T`
+    /// kept at `speed_fraction` of each limit, and at least `min_move`.
+    pub fn move_duration(&self, joints: impl Iterator<Item = (f64, f64)>) -> f64 {
+        joints.map(|(dq, speed)| 1.875 * dq.abs() / (self.speed_fraction * speed)).fold(self.min_move, f64::max)
+    }
+}
+
+/// Whether the straight joint-space path from `a` to `b` is `free`: both ends and points on it no more than `step`
+/// apart (in the max norm).
+pub fn straight_path_free(a: &[f64], b: &[f64], step: f64, mut free: impl FnMut(&[f64]) -> bool) -> bool {
+    let span = a.iter().zip(b).map(|(x, y)| (y - x).abs()).fold(0.0, f64::max);
+    let n = (span / step).ceil().max(1.0) as usize;
+    let mut q = vec![0.0; a.len()];
+    (0..=n).all(|k| {
+        let s = k as f64 / n as f64;
+        for (q, (x, y)) in q.iter_mut().zip(a.iter().zip(b)) {
+            *q = x + s * (y - x);
+        }
+        free(&q)
+    })
+}

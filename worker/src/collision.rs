@@ -4,7 +4,7 @@
 //!
 //! Adjacent bodies (pedestal-link 1, link k-link k+1) touch at their joint by construction and are not checked.
 
-use dynforge_robot::collision::pose;
+use dynforge_robot::collision::{pose, y_onto_z};
 use dynforge_robot::generator::{GeneratedRobot, Section};
 use dynforge_robot::spatial::Se3;
 use parry3d_f64::math::{Pose, Vec3};
@@ -46,11 +46,8 @@ pub struct CollisionModel {
 
 /// A prism of `section` along +z from 0 to `length`, grown by `margin` in every direction.
 fn beam_body(section: &Section, length: f64, margin: f64) -> Body {
-    // parry's cylinders run along y: rotate y onto z (rotation of +90 deg about x), centred at mid-length.
-    let along_z = Se3::new(
-        nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0),
-        nalgebra::Vector3::new(0.0, 0.0, length / 2.0),
-    );
+    // parry's cylinders run along y: turned onto z, centred at mid-length.
+    let along_z = Se3::new(y_onto_z(), nalgebra::Vector3::new(0.0, 0.0, length / 2.0));
     let half = length / 2.0 + margin;
     let shape: Box<dyn Shape> = match *section {
         Section::Solid { d } | Section::Tube { d, .. } => Box::new(Cylinder::new(half, d / 2.0 + margin)),

@@ -12,6 +12,7 @@
 //! least 6 s, enough for a 64 x 64 ms window plus offsets.
 
 pub use dynforge_proto::sim::TrajectoryConfig;
+use dynforge_proto::sim::straight_path_free;
 use dynforge_robot::generator::GeneratedRobot;
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::{Data, Model, forward_kinematics};
@@ -55,13 +56,8 @@ impl<'a> PathChecker<'a> {
 
     /// Both ends and every intermediate configuration no more than `step` apart (in the max norm) are free.
     pub fn path_free(&mut self, a: &Config6, b: &Config6) -> bool {
-        let span = a.iter().zip(b).map(|(x, y)| (y - x).abs()).fold(0.0, f64::max);
-        let n = (span / self.step).ceil().max(1.0) as usize;
-        (0..=n).all(|k| {
-            let s = k as f64 / n as f64;
-            let q: Config6 = std::array::from_fn(|j| a[j] + s * (b[j] - a[j]));
-            self.config_free(&q)
-        })
+        let step = self.step;
+        straight_path_free(a, b, step, |q| self.config_free(&std::array::from_fn(|j| q[j])))
     }
 }
 
@@ -73,8 +69,8 @@ pub fn waypoints(robot: &GeneratedRobot, seed: u64, cfg: &TrajectoryConfig) -> R
     let draw = |rng: &mut Rng| -> Config6 {
         std::array::from_fn(|j| {
             let l = &model.joints()[j].limits;
-            let (lo, hi) = (l.lower.max(-std::f64::consts::PI), l.upper.min(std::f64::consts::PI));
-            rng.uniform(lo + cfg.limit_margin, hi - cfg.limit_margin)
+            let (lo, hi) = cfg.waypoint_range(l.lower, l.upper);
+            rng.uniform(lo, hi)
         })
     };
     let mut tour: Vec<Config6> = Vec::with_capacity(cfg.waypoints);
@@ -111,9 +107,7 @@ impl Move {
     /// Trajectory `t` of a tour.
     pub fn of_tour(model: &Model, tour: &[Config6], t: usize, cfg: &TrajectoryConfig) -> Move {
         let (start, goal) = (tour[t % tour.len()], tour[(t + 1) % tour.len()]);
-        let needed = (0..6)
-            .map(|j| 1.875 * (goal[j] - start[j]).abs() / (cfg.speed_fraction * model.joints()[j].limits.velocity))
-            .fold(cfg.min_move, f64::max);
+        let needed = cfg.move_duration((0..6).map(|j| (goal[j] - start[j], model.joints()[j].limits.velocity)));
         Move { start, goal, duration: needed, hold: cfg.hold }
     }
 

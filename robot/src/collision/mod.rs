@@ -25,6 +25,11 @@ pub fn pose(x: &Se3) -> ParryPose {
     ParryPose::from_parts(Vec3::new(x.trans.x, x.trans.y, x.trans.z), Rot3::from_mat3(&mat).normalize())
 }
 
+/// The rotation that turns parry's cylinder axis (y) onto the URDF's (z): +90 degrees about x.
+pub fn y_onto_z() -> nalgebra::Matrix3<f64> {
+    nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0)
+}
+
 /// A shape placed in its body's frame.
 pub struct Placed {
     pub shape: Box<dyn ParryShape>,
@@ -39,12 +44,8 @@ pub fn shape_of(g: &Geometry, urdf: &Path) -> Result<Placed, MeshError> {
         Shape::Sphere { radius } => Box::new(Ball::new(*radius)),
         Shape::Capsule { radius, length } => Box::new(Capsule::new_z(length / 2.0, *radius)),
         Shape::Cylinder { radius, length } => {
-            // URDF cylinders run along z, parry's along y: turn y onto z (+90 degrees about x).
-            let y_to_z = Se3::new(
-                nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, 1.0, 0.0),
-                nalgebra::Vector3::zeros(),
-            );
-            offset = offset.compose(&y_to_z);
+            // URDF cylinders run along z, parry's along y.
+            offset = offset.compose(&Se3::new(y_onto_z(), nalgebra::Vector3::zeros()));
             Box::new(Cylinder::new(length / 2.0, *radius))
         }
         Shape::Mesh { filename, scale } => {
