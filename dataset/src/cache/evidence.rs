@@ -174,17 +174,20 @@ impl PhysicsSet {
     pub fn sides(&self, rule: &SplitRule) -> (Vec<Split>, Vec<Split>) {
         let windows: Vec<Split> = self.windows.origins().into_iter().map(|o| rule.side(o)).collect();
         let r = &self.recordings;
-        let mut recordings: Vec<Split> = (0..r.len())
-            .map(|i| rule.side(Origin { robot: r.robots[i], trajectory: r.trajectories[i], window: 0 }))
-            .collect();
-        if rule.by == HoldOut::Windows {
-            recordings.iter_mut().for_each(|s| *s = Split::Train);
-            for (side, &k) in windows.iter().zip(&self.windows.recording) {
-                if *side == Split::Validation {
-                    recordings[k as usize] = Split::Validation;
+        let recordings = match rule.by {
+            HoldOut::Windows => {
+                let mut sides = vec![Split::Train; r.len()];
+                for (side, &k) in windows.iter().zip(&self.windows.recording) {
+                    if *side == Split::Validation {
+                        sides[k as usize] = Split::Validation;
+                    }
                 }
+                sides
             }
-        }
+            _ => (0..r.len())
+                .map(|i| rule.side(Origin { robot: r.robots[i], trajectory: r.trajectories[i], window: 0 }))
+                .collect(),
+        };
         (windows, recordings)
     }
 

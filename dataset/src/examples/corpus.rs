@@ -1,5 +1,5 @@
-//! The transformer's examples: the windows of a dataset, split (by robot unless asked otherwise) and standardised. With `--follow` it grows
-//! between epochs as the generation adds shards.
+//! The transformer's examples: the windows of a dataset, split (by robot unless asked otherwise) and standardised.
+//! With `--follow` it grows between epochs as the generation adds shards.
 
 use dynforge_proto::NUM_LABELS;
 
