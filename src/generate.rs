@@ -8,7 +8,7 @@ use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
 use dynforge_display::GenerationDisplay;
-use dynforge_proto::flags::{MAX_ROBOTS, whole};
+use dynforge_proto::flags::{MAX_ROBOTS, positive, weld, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_robot::generator::GeneratorConfig;
@@ -21,9 +21,9 @@ pub struct GenerateArgs {
     /// Robots in the dataset (the paper: 8192).
     #[arg(long, default_value_t = 8192, value_parser = whole::<u64>(1, MAX_ROBOTS))]
     robots: u64,
-    /// Trajectories per robot (the paper: 16).
-    #[arg(long, default_value_t = 16, value_parser = whole::<u32>(1, u32::MAX as u64))]
-    trajectories: u32,
+    /// Trajectories per robot (the paper: 16; a family: one per excitation).
+    #[arg(long, value_parser = whole::<u32>(1, u32::MAX as u64))]
+    trajectories: Option<u32>,
     /// Worker processes (default: one per CPU core; at most 4 per core are started).
     #[arg(long, value_parser = whole::<usize>(1, 1 << 16))]
     workers: Option<usize>,
@@ -42,6 +42,19 @@ pub struct GenerateArgs {
     /// Seconds a job may run before its worker counts as hung and is replaced.
     #[arg(long, default_value_t = 120.0)]
     job_timeout: f64,
+    /// Your robot's family instead of the generator's robots: variants of this URDF (its kinematics and limits;
+    /// inertial parameters and friction drawn around its values), each run on every excitation of --excitation.
+    #[arg(long, requires = "excitation", conflicts_with = "config")]
+    urdf: Option<PathBuf>,
+    /// The `dynforge excite --out` directory of the URDF's excitations.
+    #[arg(long, requires = "urdf", value_name = "DIR")]
+    excitation: Option<PathBuf>,
+    /// A family's relative spread of masses and inertias (log-normal), centres of mass and friction.
+    #[arg(long, default_value_t = dynforge_proto::family::DEFAULT_SPREAD, value_parser = positive)]
+    spread: f64,
+    /// A family's joint welded at a position, as the excitations were designed (`excite --fix`).
+    #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
+    fix: Vec<(String, f64)>,
 }
 
 #[derive(Args)]
@@ -90,23 +103,33 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
     };
     let workers = args.workers.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     let exe = std::env::current_exe().context("locating the dynforge executable to start workers")?;
+    let family = match (&args.urdf, &args.excitation) {
+        (Some(urdf), Some(dir)) => {
+            Some(dynforge_worker::family::prepare(urdf, dir, args.fix.into_iter().collect(), args.spread)?)
+        }
+        _ => None,
+    };
+    let trajectories = match &family {
+        Some((f, _)) => args.trajectories.unwrap_or(f.excitation_hashes.len() as u32),
+        None => args.trajectories.unwrap_or(16),
+    };
     let cfg = GenerateConfig {
         dir: args.out.clone(),
         seed: args.seed,
         robots: args.robots,
-        trajectories: args.trajectories,
+        trajectories,
         workers,
         partition: args.partition,
         generator,
         sim: SimConfig { engine, ..SimConfig::default() },
+        family,
         job_timeout,
         max_attempts: 3,
         worker_command: vec![exe.into(), "worker".into()],
     };
     eprintln!(
-        "generating {} robots x {} trajectories (seed {}, partition {}, engine {}) into {} with {workers} workers",
+        "generating {} robots x {trajectories} trajectories (seed {}, partition {}, engine {}) into {} with {workers} workers",
         args.robots,
-        args.trajectories,
         args.seed,
         args.partition,
         engine.name(),

@@ -11,7 +11,7 @@
 
 mod common;
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::ffi::OsStr;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -19,7 +19,7 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use common::dynforge;
+use common::{dynforge, shard_hashes};
 
 const EXE: &str = env!("CARGO_BIN_EXE_dynforge");
 /// The variable that turns the engine tests on.
@@ -65,16 +65,6 @@ fn install(binary: &str, packages: &[&str]) {
         return;
     }
     ok(Command::new(repo().join("deploy/apt-install.sh")).args(packages));
-}
-
-fn shard_hashes(dir: &Path) -> BTreeMap<String, u64> {
-    std::fs::read_dir(dir.join("shards"))
-        .unwrap()
-        .map(|e| {
-            let e = e.unwrap();
-            (e.file_name().to_string_lossy().into(), dynforge_shard::content_hash(&std::fs::read(e.path()).unwrap()))
-        })
-        .collect()
 }
 
 fn ledger_set(dir: &Path) -> BTreeSet<String> {

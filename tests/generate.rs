@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{children_of, dynforge, dynforge_with_env};
+use common::{children_of, dynforge, dynforge_with_env, shard_hashes};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -30,20 +30,6 @@ fn generate_args<'a>(dir: &'a Path, robots: &'a str, trajectories: &'a str, extr
 
 fn spawn(args: &[&str]) -> Child {
     Command::new(EXE).args(args).stdout(Stdio::null()).stderr(Stdio::null()).spawn().expect("dynforge starts")
-}
-
-/// File name -> content hash of every shard in a run directory.
-fn shard_hashes(dir: &Path) -> BTreeMap<String, u64> {
-    std::fs::read_dir(dir.join("shards"))
-        .unwrap()
-        .map(|e| {
-            let e = e.unwrap();
-            (
-                e.file_name().to_string_lossy().to_string(),
-                dynforge_shard::content_hash(&std::fs::read(e.path()).unwrap()),
-            )
-        })
-        .collect()
 }
 
 fn ledger_entries(dir: &Path) -> Vec<ledger::Entry> {

@@ -5,7 +5,8 @@ use dynforge_identify::NormalEquations;
 use dynforge_recording::JointTrajectory;
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::parameters::dynamic_parameters;
-use dynforge_worker::simulate::{SimConfig, simulate};
+use dynforge_worker::job::simulate_tour;
+use dynforge_worker::simulate::SimConfig;
 use dynforge_worker::trajectory::{Move, waypoints};
 
 #[test]
@@ -16,7 +17,7 @@ fn true_parameters_reproduce_the_simulated_torques_on_every_joint() {
         let r = generate(&GeneratorConfig::default(), 5, robot).unwrap();
         let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
         let mv = Move::of_tour(&r.model, &tour, leg, &cfg.trajectory);
-        let rec = simulate(&r, &mv, &cfg).expect("the run completes");
+        let rec = simulate_tour(&r, &mv, &cfg).expect("the run completes");
         let traj = JointTrajectory {
             names: r.model.joints().iter().map(|j| j.name.clone()).collect(),
             t: (0..rec.q.len()).map(|i| i as f64 * rec.dt).collect(),

@@ -11,6 +11,7 @@ use dynforge_proto::sim::EngineKind;
 use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratorConfig;
 use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::simulate::Reference;
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {
@@ -65,7 +66,7 @@ fn main() -> Result<()> {
             let mut settled_at = mv.duration;
             for (k, q) in rec.q.iter().enumerate() {
                 let t = k as f64 * rec.dt;
-                let (q_ref, _, _) = mv.reference(t);
+                let [q_ref, _, _] = mv.at(t);
                 for j in 0..6 {
                     let d = mv.goal[j] - mv.start[j];
                     let past = (q[j] - mv.goal[j]) * d.signum();

@@ -36,7 +36,7 @@ fn measure<'m>(
         engine.step(&[0.0; 6]);
     }
     let seconds = start.elapsed().as_secs_f64();
-    let final_q = *engine.q();
+    let final_q = engine.q().to_vec();
     let mut engine = make();
     engine.reset(&Q0, &QD0);
     let mut data = Data::new(model);
@@ -48,7 +48,7 @@ fn measure<'m>(
         drift = drift.max((e.total() - e0).abs());
         peak = peak.max(e.kinetic);
     }
-    assert_eq!(final_q, *engine.q(), "{name}: the timed and the checked runs must be the same run");
+    assert_eq!(final_q, engine.q(), "{name}: the timed and the checked runs must be the same run");
     println!(
         "{{\"robot\": {robot}, \"engine\": \"{name}\", \"h_ms\": {h_ms}, \"us_per_ms\": {:.3}, \"energy_drift\": {:.3e}}}",
         seconds * 1e6 / (steps as f64 * DT * 1e3),

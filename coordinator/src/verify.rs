@@ -130,8 +130,9 @@ fn job_of_shard(name: &str, engine: &str) -> Option<(u64, u32)> {
     (file_name(robot, trajectory, engine) == name).then_some((robot, trajectory))
 }
 
-/// Checks one shard against its ledger entry; the reason if it fails.
-fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64) -> Result<(), String> {
+/// Checks one shard against its ledger entry; the reason if it fails. A family's shard is labelled with its
+/// standard parameters (12 per joint), the generator's with the paper's 38.
+fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64, family: bool) -> Result<(), String> {
     let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
     if dynforge_shard::content_hash(&bytes) != hash {
         return Err("content hash differs from the ledger".into());
@@ -144,8 +145,16 @@ fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64) -> Result<(), St
         return Err(format!("{} joint states, the ledger says {samples}", bag.joint_states.len()));
     }
     let labels = bag.metadata.get(META_LABELS).ok_or("no label metadata")?;
-    if let Some(l) = LABELS.iter().find(|l| labels.get(l.name).and_then(|v| v.parse::<f64>().ok()).is_none()) {
-        return Err(format!("label {} missing or not a number", l.name));
+    let names: Vec<&str> = match family {
+        true => labels.keys().map(String::as_str).collect(),
+        false => LABELS.iter().map(|l| l.name).collect(),
+    };
+    if let Some(l) = names.iter().find(|l| labels.get(**l).and_then(|v| v.parse::<f64>().ok()).is_none()) {
+        return Err(format!("label {l} missing or not a number"));
+    }
+    let joints = bag.joint_states.first().map_or(0, |m| m.name.len());
+    if family && labels.len() != 12 * joints {
+        return Err(format!("{} labels for {joints} joints (a family's shard has 12 per joint)", labels.len()));
     }
     let meta = bag.metadata.get(META_JOB).ok_or("no job metadata")?;
     let field = |k: &str| meta.get(k).cloned().unwrap_or_default();
@@ -189,7 +198,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
                     } else {
                         report.missing.push(name);
                     }
-                } else if let Err(reason) = check_shard(&path, &job, *samples, *shard_hash) {
+                } else if let Err(reason) = check_shard(&path, &job, *samples, *shard_hash, manifest.family.is_some()) {
                     report.corrupt.push((name, reason));
                 }
             }

@@ -8,9 +8,9 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::ExciteError;
 use crate::collision::SelfCollision;
-use crate::fourier::Fourier;
 use crate::information::{Base, Quality, add_rows, scales};
 use crate::tours::tour_information;
+use dynforge_proto::fourier::Fourier;
 
 /// What to design and within which limits.
 #[derive(Debug, Clone, PartialEq)]

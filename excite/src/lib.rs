@@ -5,14 +5,13 @@
 
 pub mod collision;
 pub mod design;
-pub mod fourier;
 pub mod information;
 pub mod tours;
 pub mod write;
 
 pub use collision::SelfCollision;
 pub use design::{Clearance, Design, Options, design, design_with, start_pose};
-pub use fourier::Fourier;
+pub use dynforge_proto::fourier::Fourier;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ExciteError {

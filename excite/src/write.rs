@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use dynforge_proto::fourier::Excitation;
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_proto::shard::TrajectoryPoint;
 use dynforge_robot::Model;
@@ -68,9 +69,10 @@ pub fn write_design(
         let path = dir.join(format!("excitation-{k}.csv"));
         write(&path, &csv)?;
         files.push(path);
-        let json = serde_json::json!({"joints": names, "series": f});
+        let excitation = Excitation { joints: joint_names, series: f.clone() };
+        let json = serde_json::to_string_pretty(&excitation).expect("an excitation serialises");
         let path = dir.join(format!("excitation-{k}.json"));
-        write(&path, &format!("{json:#}\n"))?;
+        write(&path, &format!("{json}\n"))?;
         files.push(path);
     }
     let path = dir.join("report.md");

@@ -69,11 +69,27 @@ impl CoordinatePrior {
     /// A robot drawn from this prior: `model`'s kinematics with each link's inertial at coordinates drawn from
     /// their Gaussians (`normal` gives standard normal numbers) and no friction, as a user's URDF states none. What
     /// a calibration's spreads are tested against: a robot whose truth the prior holds as it claims to.
-    pub fn draw(&self, model: &Model, mut normal: impl FnMut() -> f64) -> Result<Model, IdentifyError> {
+    pub fn draw(&self, model: &Model, normal: impl FnMut() -> f64) -> Result<Model, IdentifyError> {
+        self.draw_with(model, normal, false)
+    }
+
+    /// A member of the robot's family: as [`CoordinatePrior::draw`], and friction drawn too, folded onto the
+    /// non-negative values (`|mean + std z|`: about the URDF's value, or within the floor of it when it has none).
+    pub fn draw_variant(&self, model: &Model, normal: impl FnMut() -> f64) -> Result<Model, IdentifyError> {
+        self.draw_with(model, normal, true)
+    }
+
+    fn draw_with(
+        &self,
+        model: &Model,
+        mut normal: impl FnMut() -> f64,
+        friction: bool,
+    ) -> Result<Model, IdentifyError> {
         let n = model.dof();
-        let x = DVector::from_fn(self.mean.len(), |k, _| match k < COORDINATES * n {
-            true => self.mean[k] + self.std[k] * normal(),
-            false => 0.0,
+        let x = DVector::from_fn(self.mean.len(), |k, _| match (k < COORDINATES * n, friction) {
+            (true, _) => self.mean[k] + self.std[k] * normal(),
+            (false, true) => (self.mean[k] + self.std[k] * normal()).abs(),
+            (false, false) => 0.0,
         });
         crate::calibrate::model_with(model, &parameters(n, &x))
     }

@@ -7,7 +7,9 @@
 //! the run manifest (`manifest`, with the generator's and the simulation's settings it holds: `generator`, `sim`),
 //! and what a job is with the messages about it between the coordinator and its workers (`job`).
 
+pub mod family;
 pub mod flags;
+pub mod fourier;
 pub mod generator;
 pub mod job;
 pub mod labels;

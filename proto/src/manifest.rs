@@ -9,6 +9,7 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
+use crate::family::Family;
 use crate::generator::{GENERATOR_VERSION, GeneratorConfig};
 use crate::sim::SimConfig;
 
@@ -71,6 +72,9 @@ pub struct Manifest {
     pub partition: Partition,
     pub generator: GeneratorConfig,
     pub sim: SimConfig,
+    /// A robot's family instead of the generator's robots (`generate --urdf`): what its variants are drawn around.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub family: Option<Family>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -104,7 +108,13 @@ impl Manifest {
             partition,
             generator,
             sim,
+            family: None,
         }
+    }
+
+    /// The same run with the robots of `family`.
+    pub fn with_family(self, family: Option<Family>) -> Self {
+        Manifest { family, ..self }
     }
 
     pub fn to_toml(&self) -> String {

@@ -4,8 +4,9 @@
 //! - `/joint_states`: `sensor_msgs/msg/JointState`, CDR, one message per sample (1 kHz), stamped with sim time; the
 //!   effort is the motor torque applied over the following period.
 //! - `/robot_description`: `std_msgs/msg/String` holding the robot's URDF (as Foxglove expects), one message at t=0.
-//! - Metadata records: [`META_JOB`] (job identity), [`META_LABELS`] (the 38 labels by name),
-//!   [`META_TRAJECTORY`] (start/goal and the move/hold boundaries).
+//! - Metadata records: [`META_JOB`] (job identity), [`META_LABELS`] (the 38 labels by name; a family's shard: its
+//!   standard parameters, `LINK.mass` .. `JOINT.viscous`), [`META_TRAJECTORY`] (start/goal and the move/hold
+//!   boundaries).
 //!
 //! The CDR codec below is plain little-endian XCDR1: a 4-byte encapsulation header `00 01 00 00`, then every
 //! primitive aligned to its own size counted from the end of that header; strings are a `u32` length including a

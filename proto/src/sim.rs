@@ -63,12 +63,13 @@ impl EngineKind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PidGains {
-    /// Closed-loop natural frequency per joint [rad/s].
-    pub omega: [f64; 6],
+    /// Closed-loop natural frequency per joint [rad/s] (joints beyond the list take its last entry, as do those of
+    /// the next two lists).
+    pub omega: Vec<f64>,
     /// Smallest inertia the gains are scheduled on per joint [kg m^2]: light joints get the stiffness needed to
     /// push through Coulomb friction, up to the discrete loop's stability bound (`2 zeta omega dt I_floor / I` < 1.5
     /// for the lightest generated joint).
-    pub inertia_floor: [f64; 6],
+    pub inertia_floor: Vec<f64>,
     /// Damping ratio.
     pub zeta: f64,
     /// Integral corner as a fraction of `omega`.
@@ -81,11 +82,19 @@ pub struct PidGains {
     pub schedule_every: usize,
 }
 
+impl PidGains {
+    /// Joint `j`'s natural frequency and inertia floor.
+    pub fn joint(&self, j: usize) -> (f64, f64) {
+        let at = |v: &[f64]| v.get(j).or(v.last()).copied().unwrap_or(0.0);
+        (at(&self.omega), at(&self.inertia_floor))
+    }
+}
+
 impl Default for PidGains {
     fn default() -> Self {
         PidGains {
-            omega: [25.0; 6],
-            inertia_floor: [0.3, 0.8, 0.3, 0.06, 0.02, 0.02],
+            omega: vec![25.0; 6],
+            inertia_floor: vec![0.3, 0.8, 0.3, 0.06, 0.02, 0.02],
             zeta: 1.0,
             integral_ratio: 1.0,
             kg_fraction: 0.5,

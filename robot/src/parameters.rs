@@ -41,6 +41,31 @@ pub fn link_label(kind: LabelKind, inertia: &Inertia) -> f64 {
     }
 }
 
+/// Names of a robot's standard parameters, in [`standard_parameters`]' order: per link `LINK.mass`, `LINK.com_x`
+/// .. `LINK.com_z`, `LINK.ixx`, `LINK.ixy`, `LINK.ixz`, `LINK.iyy`, `LINK.iyz`, `LINK.izz`, then per joint
+/// `JOINT.coulomb`, `JOINT.viscous`: the labels of any serial arm, as `identify` reports them.
+pub fn standard_names(model: &Model) -> Vec<String> {
+    const LINK: [&str; 10] = ["mass", "com_x", "com_y", "com_z", "ixx", "ixy", "ixz", "iyy", "iyz", "izz"];
+    let links = model.links().iter().flat_map(|l| LINK.map(|k| format!("{}.{k}", l.name)));
+    let joints = model.joints().iter().flat_map(|j| ["coulomb", "viscous"].map(|k| format!("{}.{k}", j.name)));
+    links.chain(joints).collect()
+}
+
+/// A robot's standard parameters: per link its mass [kg], centre of mass [m] and inertia about the centre of mass
+/// [kg m^2] in the link's frame, per joint its Coulomb and viscous friction.
+pub fn standard_parameters(model: &Model) -> Vec<f64> {
+    let mut out = Vec::with_capacity(10 * model.dof() + 2 * model.dof());
+    for l in 0..model.dof() {
+        let inertia = model.inertia(l);
+        let (c, i) = (inertia.com(), inertia.i_com());
+        out.extend([inertia.mass, c.x, c.y, c.z, i[(0, 0)], i[(0, 1)], i[(0, 2)], i[(1, 1)], i[(1, 2)], i[(2, 2)]]);
+    }
+    for j in model.joints() {
+        out.extend([j.friction.coulomb, j.friction.viscous]);
+    }
+    out
+}
+
 /// The full parameter vector `pi` with `tau = Y pi` (layout of [`dynforge_proto::params`]).
 pub fn dynamic_parameters(model: &Model) -> Vec<f64> {
     let n = model.dof();

@@ -9,6 +9,7 @@
 pub mod domain {
     pub const ROBOT: u64 = 0x524f_424f_5400_0001;
     pub const TRAJECTORY: u64 = 0x5452_414a_0000_0002;
+    pub const FAMILY: u64 = 0x4641_4d49_4c59_0003;
 }
 
 const GOLDEN: u64 = 0x9e37_79b9_7f4a_7c15;

@@ -28,3 +28,17 @@ pub fn children_of(pid: u32) -> Vec<u32> {
         })
         .collect()
 }
+
+/// File name -> content hash of every shard in a run directory.
+pub fn shard_hashes(dir: &std::path::Path) -> std::collections::BTreeMap<String, u64> {
+    std::fs::read_dir(dir.join("shards"))
+        .unwrap()
+        .map(|e| {
+            let e = e.unwrap();
+            (
+                e.file_name().to_string_lossy().to_string(),
+                dynforge_shard::content_hash(&std::fs::read(e.path()).unwrap()),
+            )
+        })
+        .collect()
+}

@@ -19,7 +19,7 @@
 //! see the README.
 
 pub use dynforge_proto::sim::PidGains;
-use nalgebra::Matrix6;
+use nalgebra::DMatrix;
 
 /// Gains of one joint loop at the current pose (`kp` includes the gravity-aware term).
 #[derive(Debug, Clone, Copy, Default)]
@@ -33,23 +33,24 @@ struct Scheduled {
 #[derive(Debug, Clone)]
 pub struct Pid {
     gains: PidGains,
-    effort: [f64; 6],
+    effort: Vec<f64>,
     /// Integral term, as a torque.
-    integral: [f64; 6],
-    scheduled: [Scheduled; 6],
+    integral: Vec<f64>,
+    scheduled: Vec<Scheduled>,
 }
 
 impl Pid {
     /// A controller whose integral term starts at `hold` (e.g. the gravity torque of the start pose, so the arm
     /// starts in equilibrium instead of sagging), within the anti-windup bound.
-    pub fn new(gains: PidGains, effort: [f64; 6], hold: [f64; 6]) -> Self {
-        let mut pid = Pid { gains, effort, integral: hold, scheduled: [Scheduled::default(); 6] };
+    pub fn new(gains: PidGains, effort: Vec<f64>, hold: Vec<f64>) -> Self {
+        let n = effort.len();
+        let mut pid = Pid { gains, effort, integral: hold, scheduled: vec![Scheduled::default(); n] };
         pid.clamp_integral();
         pid
     }
 
     fn clamp_integral(&mut self) {
-        for j in 0..6 {
+        for j in 0..self.effort.len() {
             let max = self.gains.windup_fraction * self.effort[j];
             self.integral[j] = self.integral[j].clamp(-max, max);
         }
@@ -62,38 +63,45 @@ impl Pid {
     /// (`1 / (M^-1)_ii`) is far below `M_ii`. The discrete loop stays stable while `dt lambda_max(M^-1 Kd)` is well
     /// below 2; it is kept at most 1 by scaling the loop's frequency (`Kd` by `s`, `Kp` and `Ki` by `s^2`, which
     /// keeps the damping ratio). `lambda_max` is that of the symmetric `Kd^1/2 M^-1 Kd^1/2`.
-    pub fn schedule(&mut self, m: &Matrix6<f64>, dz_dq: &[f64; 6], dt: f64) {
+    pub fn schedule(&mut self, m: &DMatrix<f64>, dz_dq: &[f64], dt: f64) {
         let g = &self.gains;
-        let m_inv = m.cholesky().map(|c| c.inverse()).unwrap_or_else(Matrix6::zeros);
-        let mut kp = [0.0; 6];
-        let mut kd = [0.0; 6];
-        for j in 0..6 {
-            let w = g.omega[j];
-            kp[j] = m[(j, j)].max(g.inertia_floor[j]) * w * w;
+        let n = self.effort.len();
+        let m_inv = m.clone().cholesky().map(|c| c.inverse()).unwrap_or_else(|| DMatrix::zeros(n, n));
+        let mut kp = vec![0.0; n];
+        let mut kd = vec![0.0; n];
+        for j in 0..n {
+            let (w, floor) = g.joint(j);
+            kp[j] = m[(j, j)].max(floor) * w * w;
             // Damping for the joint's own inertia at this stiffness, so a floored joint is not overdamped into
             // instability: Kd dt / I = 2 zeta sqrt(Kp / I) dt stays small.
             kd[j] = 2.0 * g.zeta * (kp[j] * m[(j, j)]).sqrt();
         }
-        let root = Matrix6::from_diagonal(&nalgebra::Vector6::from(kd.map(f64::sqrt)));
-        let lambda = (root * m_inv * root).symmetric_eigenvalues().max();
+        let root: Vec<f64> = kd.iter().map(|k| k.sqrt()).collect();
+        // `root M^-1 root` with `root` diagonal: each element scaled by its row's and its column's root.
+        let scaled = DMatrix::from_fn(n, n, |r, c| root[r] * m_inv[(r, c)] * root[c]);
+        let lambda = scaled.symmetric_eigenvalues().max();
         let s = (1.0 / (dt * lambda)).min(1.0);
-        for j in 0..6 {
+        for j in 0..n {
             let kp_s = kp[j] * s * s;
             self.scheduled[j] = Scheduled {
                 kp: kp_s * (1.0 + g.kg_fraction * dz_dq[j].abs()),
                 kd: kd[j] * s,
-                ki: kp_s * g.omega[j] * s * g.integral_ratio,
+                ki: kp_s * g.joint(j).0 * s * g.integral_ratio,
             };
         }
     }
 
-    /// Torque command for errors `e = q_ref - q` and `ed = qd_ref - qd` with the last scheduled gains; then
-    /// advances the integral by `dt`. Returns the saturated torque.
-    pub fn update(&mut self, e: &[f64; 6], ed: &[f64; 6], dt: f64) -> [f64; 6] {
-        let mut out = [0.0; 6];
-        for j in 0..6 {
+    /// Torque command for errors `e = q_ref - q` and `ed = qd_ref - qd` with the last scheduled gains, plus a
+    /// feedforward torque if one is given; then advances the integral by `dt`. Returns the saturated torque.
+    pub fn update(&mut self, e: &[f64], ed: &[f64], feedforward: Option<&[f64]>, dt: f64) -> Vec<f64> {
+        let n = self.effort.len();
+        let mut out = vec![0.0; n];
+        for j in 0..n {
             let k = self.scheduled[j];
-            let raw = k.kp * e[j] + self.integral[j] + k.kd * ed[j];
+            let mut raw = k.kp * e[j] + self.integral[j] + k.kd * ed[j];
+            if let Some(ff) = feedforward {
+                raw += ff[j];
+            }
             out[j] = raw.clamp(-self.effort[j], self.effort[j]);
             let saturated_along_error = out[j] != raw && raw.signum() == e[j].signum();
             if !saturated_along_error {

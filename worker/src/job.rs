@@ -11,7 +11,11 @@ use dynforge_robot::generator::{GENERATOR_VERSION, GeneratedRobot, GeneratorConf
 use dynforge_robot::parameters::labels_of;
 use dynforge_shard::{Metadata, ShardContent, ShardError};
 
-use crate::simulate::{Discard, Recording, SimConfig, simulate};
+use nalgebra::Vector3;
+
+use crate::collision::CollisionModel;
+use crate::family::FamilyRunner;
+use crate::simulate::{Arm, Discard, Recording, SimConfig, simulate};
 use crate::trajectory::{Config6, Move, PlanError, waypoints};
 
 /// What a job produced.
@@ -34,6 +38,9 @@ pub enum JobError {
     Model(#[from] dynforge_robot::ModelError),
     #[error(transparent)]
     Shard(#[from] ShardError),
+    /// A family's variant could not be drawn (its URDF was checked before the run: this is a bug, not a discard).
+    #[error("drawing the family's variant: {0}")]
+    Family(String),
 }
 
 /// A generated robot and its waypoint tour (or why none was found), for (seed, robot).
@@ -49,11 +56,17 @@ pub struct Runner {
     generator: GeneratorConfig,
     sim: SimConfig,
     cache: Option<Planned>,
+    family: Option<FamilyRunner>,
 }
 
 impl Runner {
     pub fn new(generator: GeneratorConfig, sim: SimConfig) -> Self {
-        Runner { generator, sim, cache: None }
+        Runner { generator, sim, cache: None, family: None }
+    }
+
+    /// A runner of a family's jobs instead of the generator's.
+    pub fn of_family(family: FamilyRunner, sim: SimConfig) -> Self {
+        Runner { family: Some(family), ..Runner::new(GeneratorConfig::default(), sim) }
     }
 
     pub fn sim_config(&self) -> &SimConfig {
@@ -78,7 +91,7 @@ impl Runner {
         let result = match tour {
             Ok(tour) => {
                 let mv = Move::of_tour(&robot.model, tour, job.trajectory as usize, &sim.trajectory);
-                simulate(&robot, &mv, &sim).map(|rec| (mv, rec))
+                simulate_tour(&robot, &mv, &sim).map(|rec| (mv, rec))
             }
             Err(e) => Err(Discard::Planning(e.clone())),
         };
@@ -87,6 +100,9 @@ impl Runner {
 
     /// Runs a job and writes its shard into `out_dir`.
     pub fn run(&mut self, job: &Job, out_dir: &Path) -> Result<Outcome, JobError> {
+        if let Some(family) = &self.family {
+            return family.run(job, &self.sim, out_dir);
+        }
         let Simulated { robot, result } = match self.simulate(job) {
             Ok(s) => s,
             Err(JobError::Model(e)) => return Ok(Outcome::Discarded(Discard::Rejected(e))),
@@ -96,20 +112,8 @@ impl Runner {
             Ok(done) => done,
             Err(d) => return Ok(Outcome::Discarded(d)),
         };
-        let path = out_dir.join(job.shard_name(self.sim.engine.name()));
-        let messages = joint_states(&robot, &rec);
         let metadata = self.metadata(job, &robot, &mv)?;
-        let content_hash = dynforge_shard::write(
-            &path,
-            &ShardContent { urdf: &robot.urdf(), joint_states: &messages, metadata: &metadata },
-        )?;
-        Ok(Outcome::Written {
-            path,
-            samples: rec.len(),
-            duration: rec.duration(),
-            saturated: rec.saturated,
-            content_hash,
-        })
+        write_shard(&out_dir.join(job.shard_name(self.sim.engine.name())), &robot.model, &robot.urdf(), &rec, &metadata)
     }
 
     fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {
@@ -130,7 +134,7 @@ impl Runner {
             ("start".to_string(), joined(&mv.start)),
             ("goal".to_string(), joined(&mv.goal)),
             ("move_end".to_string(), format!("{}", mv.duration)),
-            ("hold_end".to_string(), format!("{}", mv.total())),
+            ("hold_end".to_string(), format!("{}", mv.duration + mv.hold)),
         ]);
         Ok(BTreeMap::from([
             (META_JOB.to_string(), job_meta),
@@ -140,9 +144,42 @@ impl Runner {
     }
 }
 
+/// Simulates a move of a generated robot, checked against its own bodies: the gravity-aware gain follows the tip of
+/// its last beam.
+pub fn simulate_tour(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Recording, Discard> {
+    let last = robot.beams.len() - 1;
+    let collision = CollisionModel::new(robot, 0.0);
+    let arm = Arm {
+        model: &robot.model,
+        tip: (last, Vector3::new(0.0, 0.0, robot.beams[last].length)),
+        collision: &collision,
+        feedforward: None,
+    };
+    simulate(&arm, mv, cfg)
+}
+
+/// Writes the shard of a recording of `model` (described by `urdf`) at `path`.
+pub(crate) fn write_shard(
+    path: &Path,
+    model: &dynforge_robot::Model,
+    urdf: &str,
+    rec: &Recording,
+    metadata: &Metadata,
+) -> Result<Outcome, JobError> {
+    let messages = joint_states(model, rec);
+    let content_hash = dynforge_shard::write(path, &ShardContent { urdf, joint_states: &messages, metadata })?;
+    Ok(Outcome::Written {
+        path: path.to_path_buf(),
+        samples: rec.len(),
+        duration: rec.duration(),
+        saturated: rec.saturated,
+        content_hash,
+    })
+}
+
 /// The recording as ROS 2 joint-state messages stamped with sim time.
-pub fn joint_states(robot: &GeneratedRobot, rec: &Recording) -> Vec<JointState> {
-    let names: std::sync::Arc<[String]> = robot.model.joints().iter().map(|j| j.name.clone()).collect();
+pub fn joint_states(model: &dynforge_robot::Model, rec: &Recording) -> Vec<JointState> {
+    let names: std::sync::Arc<[String]> = model.joints().iter().map(|j| j.name.clone()).collect();
     let dt_ns = (rec.dt * 1e9).round() as i64;
     (0..rec.len())
         .map(|k| {
@@ -152,9 +189,9 @@ pub fn joint_states(robot: &GeneratedRobot, rec: &Recording) -> Vec<JointState> 
                 nanosec: (t % 1_000_000_000) as u32,
                 frame_id: String::new(),
                 name: names.clone(),
-                position: rec.q[k].to_vec(),
-                velocity: rec.qd[k].to_vec(),
-                effort: rec.tau[k].to_vec(),
+                position: rec.q[k].clone(),
+                velocity: rec.qd[k].clone(),
+                effort: rec.tau[k].clone(),
             }
         })
         .collect()

@@ -2,12 +2,13 @@
 //! data, or a discard with a reason ([`job`] and the modules it chains), and serves a coordinator's jobs as the
 //! worker process ([`serve`]).
 
-// Index loops over the six joints mirror the equations they implement.
+// Index loops over the joints mirror the equations they implement.
 #![allow(clippy::needless_range_loop)]
 
 pub mod collision;
 pub mod control;
 pub mod engine;
+pub mod family;
 pub mod job;
 pub mod serve;
 pub mod simulate;

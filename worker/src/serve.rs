@@ -18,6 +18,8 @@ pub enum ServeError {
     NoManifest(String),
     #[error(transparent)]
     Ipc(#[from] IpcError),
+    #[error(transparent)]
+    Family(#[from] crate::family::FamilySetupError),
 }
 
 /// Fault injection for tests of the coordinator's hung-worker deadline: when set to a number of seconds, every
@@ -41,9 +43,12 @@ pub fn serve(dir: &Path, slot: usize) -> Result<u64, ServeError> {
     let stall = stall_of(STALL_ENV);
     let manifest =
         Manifest::load(dir)?.ok_or_else(|| ServeError::NoManifest(dir.join(MANIFEST).display().to_string()))?;
+    let mut runner = match &manifest.family {
+        Some(family) => Runner::of_family(crate::family::FamilyRunner::new(dir, family)?, manifest.sim),
+        None => Runner::new(manifest.generator, manifest.sim),
+    };
     let run = RunId::for_dir(dir)?;
     let mut worker = Worker::new(&run, slot)?;
-    let mut runner = Runner::new(manifest.generator, manifest.sim);
     let shards = dir.join(SHARDS);
     let mut served = 0;
     while let Some(request) = worker.next_job()? {

@@ -2,14 +2,40 @@
 
 use dynforge_proto::sim::EngineKind;
 pub use dynforge_proto::sim::SimConfig;
-use dynforge_robot::generator::GeneratedRobot;
-use dynforge_robot::{Data, crba, energy, point_jacobian};
-use nalgebra::{Matrix6, Vector3};
+use dynforge_robot::spatial::Se3;
+use dynforge_robot::{Data, Model, crba, energy, point_jacobian, rnea};
+use nalgebra::Vector3;
 
-use crate::collision::{CollisionModel, Contact};
+use crate::collision::Contact;
 use crate::control::Pid;
 use crate::engine::{Engine, NativeEngine, RAPIER_SUBSTEPS, RapierEngine};
-use crate::trajectory::{Config6, Move, PlanError};
+use crate::trajectory::PlanError;
+
+/// What a run follows: a reference that starts at rest at `start` and ends at rest at `goal` after `total` seconds.
+pub trait Reference {
+    fn start(&self) -> &[f64];
+    fn goal(&self) -> &[f64];
+    /// Duration of the run [s].
+    fn total(&self) -> f64;
+    /// Reference position, velocity and acceleration at time `t`.
+    fn at(&self, t: f64) -> [Vec<f64>; 3];
+}
+
+/// A robot's collision bodies: the first contact in the configuration whose link frames are `o_m_i`.
+pub trait Collides {
+    fn contact(&self, o_m_i: &[Se3]) -> Option<Contact>;
+}
+
+/// The arm a run simulates: its model, the point whose height the gravity-aware gain follows (a link and a point in
+/// that link's frame), its collision bodies, and the model its controller's feedforward believes in, if it has one
+/// (the inverse dynamics of the reference, as a robot's own controller computes it from its URDF: the PID then
+/// only corrects what that model gets wrong).
+pub struct Arm<'a> {
+    pub model: &'a Model,
+    pub tip: (usize, Vector3<f64>),
+    pub collision: &'a dyn Collides,
+    pub feedforward: Option<&'a Model>,
+}
 
 /// Why a run was discarded.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -32,6 +58,9 @@ pub enum Discard {
     /// of): as deterministic as a collision, so recorded once rather than retried on every resume.
     #[error("the generator rejected the robot: {0}")]
     Rejected(dynforge_robot::ModelError),
+    /// The engine cannot simulate this arm (rapier and a prismatic joint).
+    #[error("the {engine} engine cannot simulate joint {joint} ({why})")]
+    Unsupported { engine: &'static str, joint: usize, why: &'static str },
 }
 
 impl Discard {
@@ -46,6 +75,7 @@ impl Discard {
             Discard::Timeout { .. } => "timeout",
             Discard::Planning(_) => "planning",
             Discard::Rejected(_) => "rejected",
+            Discard::Unsupported { .. } => "unsupported",
         }
     }
 }
@@ -54,9 +84,9 @@ impl Discard {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording {
     pub dt: f64,
-    pub q: Vec<Config6>,
-    pub qd: Vec<Config6>,
-    pub tau: Vec<Config6>,
+    pub q: Vec<Vec<f64>>,
+    pub qd: Vec<Vec<f64>>,
+    pub tau: Vec<Vec<f64>>,
     /// Share of samples where some joint's torque saturated.
     pub saturated: f64,
 }
@@ -73,27 +103,24 @@ impl Recording {
     }
 }
 
-/// Builds the configured engine for a robot.
-pub fn engine_for<'m>(kind: EngineKind, robot: &'m GeneratedRobot, dt: f64) -> Box<dyn Engine + 'm> {
+/// Builds the configured engine for an arm.
+pub fn engine_for<'m>(kind: EngineKind, model: &'m Model, dt: f64) -> Result<Box<dyn Engine + 'm>, Discard> {
     match kind {
-        EngineKind::Native => Box::new(NativeEngine::new(&robot.model, dt)),
-        EngineKind::Rapier => Box::new(RapierEngine::new(&robot.model, dt, RAPIER_SUBSTEPS)),
+        EngineKind::Native => Ok(Box::new(NativeEngine::new(model, dt))),
+        EngineKind::Rapier => match (0..model.dof()).find(|&j| model.is_prismatic(j)) {
+            Some(joint) => Err(Discard::Unsupported { engine: kind.name(), joint, why: "prismatic" }),
+            None => Ok(Box::new(RapierEngine::new(model, dt, RAPIER_SUBSTEPS))),
+        },
     }
 }
 
 /// A state no stable simulation of a controlled arm reaches: not finite, outside the joint limits, or faster than
 /// `cfg.velocity_blowup` times a joint's speed limit.
-fn check_state(
-    model: &dynforge_robot::Model,
-    q: &Config6,
-    qd: &Config6,
-    t: f64,
-    cfg: &SimConfig,
-) -> Result<(), Discard> {
+fn check_state(model: &Model, q: &[f64], qd: &[f64], t: f64, cfg: &SimConfig) -> Result<(), Discard> {
     if q.iter().chain(qd).any(|v| !v.is_finite()) {
         return Err(Discard::NonFinite { t });
     }
-    for j in 0..6 {
+    for j in 0..model.dof() {
         let lim = &model.joints()[j].limits;
         if q[j] < lim.lower || q[j] > lim.upper {
             return Err(Discard::JointLimit { joint: j, t });
@@ -105,21 +132,24 @@ fn check_state(
     Ok(())
 }
 
-/// Simulates `mv` on `robot`, starting at rest in equilibrium at the move's start.
-pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Recording, Discard> {
-    let model = &robot.model;
-    let mut engine = engine_for(cfg.engine, robot, cfg.dt);
+/// Simulates `reference` on `arm`, starting at rest in equilibrium at its start.
+pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result<Recording, Discard> {
+    let model = arm.model;
+    let n = model.dof();
+    let mut engine = engine_for(cfg.engine, model, cfg.dt)?;
     let mut data = Data::new(model);
-    let collision = CollisionModel::new(robot, 0.0);
-    let effort: Config6 = std::array::from_fn(|j| model.joints()[j].limits.effort);
-    let hold: Config6 = {
-        let g = dynforge_robot::gravity_torque(model, &mut data, &mv.start);
-        std::array::from_fn(|j| g[j])
+    let start = reference.start();
+    let effort: Vec<f64> = model.joints().iter().map(|j| j.limits.effort).collect();
+    // With a feedforward the start pose's gravity is in it; without, the integral term holds it.
+    let hold = match arm.feedforward {
+        Some(_) => vec![0.0; n],
+        None => dynforge_robot::gravity_torque(model, &mut data, start).to_vec(),
     };
-    let mut pid = Pid::new(cfg.gains.clone(), effort, hold);
-    engine.reset(&mv.start, &[0.0; 6]);
-    let tip = Vector3::new(0.0, 0.0, robot.beams[5].length);
-    let steps = (mv.total() / cfg.dt).round() as usize;
+    let mut believed = arm.feedforward.map(Data::new);
+    let mut pid = Pid::new(cfg.gains.clone(), effort.clone(), hold);
+    let rest = vec![0.0; n];
+    engine.reset(start, &rest);
+    let steps = (reference.total() / cfg.dt).round() as usize;
     let mut rec = Recording {
         dt: cfg.dt,
         q: Vec::with_capacity(steps),
@@ -127,12 +157,12 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
         tau: Vec::with_capacity(steps),
         saturated: 0.0,
     };
-    let e0 = energy(model, &mut data, &mv.start, &[0.0; 6]).total();
+    let e0 = energy(model, &mut data, start, &rest).total();
     let mut work = 0.0;
     let mut saturated = 0usize;
     for k in 0..steps {
         let t = k as f64 * cfg.dt;
-        let (q, qd) = (*engine.q(), *engine.qd());
+        let (q, qd) = (engine.q().to_vec(), engine.qd().to_vec());
         check_state(model, &q, &qd, t, cfg)?;
         if k.is_multiple_of(cfg.collision_every) {
             let e = energy(model, &mut data, &q, &qd).total();
@@ -141,38 +171,39 @@ pub fn simulate(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Re
                 return Err(Discard::EnergyBlowup { excess, t });
             }
             // `energy` left the link frames of q in `data`.
-            if let Some(contact) = collision.check(&data.o_m_i) {
+            if let Some(contact) = arm.collision.contact(&data.o_m_i) {
                 return Err(Discard::Collision { contact, t });
             }
         }
         if k.is_multiple_of(cfg.gains.schedule_every.max(1)) {
-            let m = {
-                let m = crba(model, &mut data, &q);
-                Matrix6::from_fn(|r, c| m[(r, c)])
-            };
+            let m = crba(model, &mut data, &q).clone();
             // `crba` left the link frames of q in `data`.
-            point_jacobian(model, &mut data, 5, &tip);
-            let dz_dq: Config6 = std::array::from_fn(|j| data.jacobian[(2, j)]);
+            point_jacobian(model, &mut data, arm.tip.0, &arm.tip.1);
+            let dz_dq: Vec<f64> = (0..n).map(|j| data.jacobian[(2, j)]).collect();
             pid.schedule(&m, &dz_dq, cfg.dt);
         }
-        let (q_ref, qd_ref, _) = mv.reference(t);
-        let e: Config6 = std::array::from_fn(|j| q_ref[j] - q[j]);
-        let ed: Config6 = std::array::from_fn(|j| qd_ref[j] - qd[j]);
-        let tau = pid.update(&e, &ed, cfg.dt);
-        if (0..6).any(|j| tau[j].abs() >= effort[j]) {
+        let [q_ref, qd_ref, qdd_ref] = reference.at(t);
+        let e: Vec<f64> = (0..n).map(|j| q_ref[j] - q[j]).collect();
+        let ed: Vec<f64> = (0..n).map(|j| qd_ref[j] - qd[j]).collect();
+        let ff = match (arm.feedforward, believed.as_mut()) {
+            (Some(m), Some(d)) => Some(rnea(m, d, &q_ref, &qd_ref, &qdd_ref).to_vec()),
+            _ => None,
+        };
+        let tau = pid.update(&e, &ed, ff.as_deref(), cfg.dt);
+        if (0..n).any(|j| tau[j].abs() >= effort[j]) {
             saturated += 1;
         }
-        rec.q.push(q);
-        rec.qd.push(qd);
-        rec.tau.push(tau);
         engine.step(&tau);
         // Motor work over the period: exact for a torque held constant, tau . (q_next - q).
         let q_next = engine.q();
-        work += (0..6).map(|j| tau[j] * (q_next[j] - q[j])).sum::<f64>();
+        work += (0..n).map(|j| tau[j] * (q_next[j] - q[j])).sum::<f64>();
+        rec.q.push(q);
+        rec.qd.push(qd);
+        rec.tau.push(tau);
     }
-    let q_end = engine.q();
-    for j in 0..6 {
-        let error = (q_end[j] - mv.goal[j]).abs();
+    let (q_end, goal) = (engine.q(), reference.goal());
+    for j in 0..n {
+        let error = (q_end[j] - goal[j]).abs();
         if error > cfg.goal_tolerance {
             return Err(Discard::Timeout { joint: j, error });
         }

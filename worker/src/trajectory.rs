@@ -18,8 +18,9 @@ use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::{Data, Model, forward_kinematics};
 
 use crate::collision::CollisionModel;
+use crate::simulate::Reference;
 
-/// Joint-space configuration of the 6-DOF arm.
+/// Joint-space configuration of a generated (6-joint) arm: the tours plan for the generator's robots only.
 pub type Config6 = [f64; 6];
 
 /// Why no waypoints could be found.
@@ -110,20 +111,28 @@ impl Move {
         let needed = cfg.move_duration((0..6).map(|j| (goal[j] - start[j], model.joints()[j].limits.velocity)));
         Move { start, goal, duration: needed, hold: cfg.hold }
     }
+}
 
-    /// Total duration [s].
-    pub fn total(&self) -> f64 {
+impl Reference for Move {
+    fn start(&self) -> &[f64] {
+        &self.start
+    }
+
+    fn goal(&self) -> &[f64] {
+        &self.goal
+    }
+
+    fn total(&self) -> f64 {
         self.duration + self.hold
     }
 
-    /// Reference position, velocity and acceleration at time `t`.
-    pub fn reference(&self, t: f64) -> (Config6, Config6, Config6) {
+    fn at(&self, t: f64) -> [Vec<f64>; 3] {
         let [p, dp, ddp] = dynforge_proto::sim::minimum_jerk(t, self.duration);
-        let d: Config6 = std::array::from_fn(|j| self.goal[j] - self.start[j]);
-        (
-            std::array::from_fn(|j| self.start[j] + d[j] * p),
-            std::array::from_fn(|j| d[j] * dp),
-            std::array::from_fn(|j| d[j] * ddp),
-        )
+        let d: Vec<f64> = (0..self.start.len()).map(|j| self.goal[j] - self.start[j]).collect();
+        [
+            d.iter().zip(&self.start).map(|(d, s)| s + d * p).collect(),
+            d.iter().map(|d| d * dp).collect(),
+            d.iter().map(|d| d * ddp).collect(),
+        ]
     }
 }

@@ -4,7 +4,8 @@ use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
 use dynforge_robot::model::Friction;
 use dynforge_robot::{Data, crba, energy, friction_torque, gravity_torque, rnea};
 use dynforge_worker::engine::{Engine, NativeEngine, RapierEngine};
-use dynforge_worker::simulate::{SimConfig, simulate};
+use dynforge_worker::job::simulate_tour;
+use dynforge_worker::simulate::SimConfig;
 use dynforge_worker::trajectory::{Move, waypoints};
 
 fn robot(id: u64) -> GeneratedRobot {
@@ -88,9 +89,9 @@ fn stiction_holds_below_the_coulomb_limit_and_breaks_away_above() {
 /// slides throughout, from consecutive samples `(q, qd)` and the torque held between them; and how many periods.
 fn inverse_dynamics_residual(
     model: &dynforge_robot::Model,
-    q: &[[f64; 6]],
-    qd: &[[f64; 6]],
-    tau: &[[f64; 6]],
+    q: &[Vec<f64>],
+    qd: &[Vec<f64>],
+    tau: &[Vec<f64>],
     dt: f64,
 ) -> (f64, usize) {
     let mut data = Data::new(model);
@@ -125,7 +126,7 @@ fn logged_torque_matches_inverse_dynamics_of_the_logged_motion() {
     let cfg = SimConfig::default();
     let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
     let mv = Move::of_tour(&r.model, &tour, 0, &cfg.trajectory);
-    let rec = simulate(&r, &mv, &cfg).expect("the run completes");
+    let rec = simulate_tour(&r, &mv, &cfg).expect("the run completes");
     let (rel, used) = inverse_dynamics_residual(&r.model, &rec.q, &rec.qd, &rec.tau, rec.dt);
     assert!(used > rec.len() / 4, "only {used} of {} samples slide on every joint", rec.len());
     assert!(rel < 1e-3, "relative RMS torque residual {rel:e} over {used} samples");
@@ -140,13 +141,13 @@ fn rapier_inverse_dynamics_residual_is_its_first_order_integration_error() {
     let residual = |substeps: usize| {
         let mut engine = RapierEngine::new(&model, 1e-3, substeps);
         engine.reset(&Q0, &QD0);
-        let (mut q, mut qd, mut tau) = (vec![*engine.q()], vec![*engine.qd()], Vec::new());
+        let (mut q, mut qd, mut tau) = (vec![engine.q().to_vec()], vec![engine.qd().to_vec()], Vec::new());
         for k in 0..300 {
             let t = [20.0 * (k as f64 * 0.01).sin(), 30.0, 10.0, 2.0, 0.5, 0.3];
             engine.step(&t);
-            tau.push(t);
-            q.push(*engine.q());
-            qd.push(*engine.qd());
+            tau.push(t.to_vec());
+            q.push(engine.q().to_vec());
+            qd.push(engine.qd().to_vec());
         }
         inverse_dynamics_residual(&model, &q, &qd, &tau, 1e-3).0
     };
@@ -160,8 +161,8 @@ fn same_job_gives_bit_identical_recordings() {
     let cfg = SimConfig::default();
     let tour = waypoints(&r, 5, &cfg.trajectory).unwrap();
     let mv = Move::of_tour(&r.model, &tour, 3, &cfg.trajectory);
-    let a = simulate(&r, &mv, &cfg);
-    let b = simulate(&r, &mv, &cfg);
+    let a = simulate_tour(&r, &mv, &cfg);
+    let b = simulate_tour(&r, &mv, &cfg);
     assert_eq!(a, b);
 }
 
@@ -180,12 +181,12 @@ fn engines_agree_within_rapiers_first_order_error() {
     // The same free swing in both engines: native RK4's error is ~1e-9 here, so the difference is rapier's own
     // O(h) error, which must shrink about 2x when its substeps double, and be small in absolute terms.
     let model = frictionless(&robot(2));
-    let run = |mut engine: Box<dyn Engine>| -> Vec<[f64; 6]> {
+    let run = |mut engine: Box<dyn Engine>| -> Vec<Vec<f64>> {
         engine.reset(&Q0, &QD0);
         (0..500)
             .map(|_| {
                 engine.step(&[0.0; 6]);
-                *engine.q()
+                engine.q().to_vec()
             })
             .collect()
     };

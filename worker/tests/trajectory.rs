@@ -3,6 +3,7 @@
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::{Data, forward_kinematics};
 use dynforge_worker::collision::{CollisionModel, Contact};
+use dynforge_worker::simulate::Reference;
 use dynforge_worker::trajectory::{Move, PathChecker, TrajectoryConfig, waypoints};
 
 #[test]
@@ -53,22 +54,22 @@ fn minimum_jerk_reference_starts_and_ends_at_rest() {
     let mv = Move::of_tour(&r.model, &tour, 15, &cfg);
     assert_eq!((mv.start, mv.goal), (tour[15], tour[0]), "the last trajectory closes the tour");
     assert!(mv.total() >= 4.096 + 1.0, "long enough for one 64 x 64 ms window and offsets");
-    let (q0, v0, a0) = mv.reference(0.0);
-    let (q1, v1, a1) = mv.reference(mv.duration);
+    let [q0, v0, a0] = mv.at(0.0);
+    let [q1, v1, a1] = mv.at(mv.duration);
     assert_eq!(q0, mv.start);
     for j in 0..6 {
         assert!((q1[j] - mv.goal[j]).abs() < 1e-12);
         assert!(v0[j] == 0.0 && a0[j] == 0.0 && v1[j].abs() < 1e-12 && a1[j].abs() < 1e-9);
         // Peak speed at mid-move is 1.875 dq / T and within the configured fraction of the limit.
-        let (_, vm, _) = mv.reference(mv.duration / 2.0);
+        let [_, vm, _] = mv.at(mv.duration / 2.0);
         let dq = mv.goal[j] - mv.start[j];
         assert!((vm[j] - 1.875 * dq / mv.duration).abs() < 1e-12);
         assert!(vm[j].abs() <= cfg.speed_fraction * r.model.joints()[j].limits.velocity + 1e-12);
         // The velocity is the derivative of the position (central difference, h = 1e-6).
         let t = 0.37 * mv.duration;
-        let (qp, _, _) = mv.reference(t + 1e-6);
-        let (qm, _, _) = mv.reference(t - 1e-6);
-        let (_, v, _) = mv.reference(t);
+        let [qp, _, _] = mv.at(t + 1e-6);
+        let [qm, _, _] = mv.at(t - 1e-6);
+        let [_, v, _] = mv.at(t);
         assert!(((qp[j] - qm[j]) / 2e-6 - v[j]).abs() < 1e-6);
     }
 }

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use dynforge_ipc::{Coordinator, IpcError, RunId};
+use dynforge_proto::family::{Family, Sources};
 use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{CACHE, LEDGER, LOGS, MANIFEST, SHARDS, remove_temporaries};
@@ -38,6 +39,9 @@ pub struct GenerateConfig {
     pub partition: Partition,
     pub generator: GeneratorConfig,
     pub sim: SimConfig,
+    /// A robot's family instead of the generator's robots: its manifest record and its files, copied into the run
+    /// directory for the workers.
+    pub family: Option<(Family, Sources)>,
     /// A job running longer than this marks its worker as hung: it is killed and replaced.
     pub job_timeout: Duration,
     /// A job whose worker died (or failed) this many times is recorded as failed.
@@ -225,6 +229,16 @@ fn check_settings(cfg: &GenerateConfig) -> Result<(), GenerateError> {
             cfg.robots, cfg.trajectories, cfg.workers
         )));
     }
+    if let Some((family, _)) = &cfg.family {
+        let n = family.excitation_hashes.len();
+        return match cfg.trajectories as usize == n {
+            true => Ok(()),
+            false => Err(GenerateError::Settings(format!(
+                "--trajectories {}: a family's robots run each of its {n} excitation(s), once",
+                cfg.trajectories
+            ))),
+        };
+    }
     // Trajectory t is the move from waypoint t to t + 1 of a closed tour: there are as many as waypoints.
     let tour = cfg.sim.trajectory.waypoints;
     if cfg.trajectories as usize > tour {
@@ -253,7 +267,8 @@ fn open_run_dir(
         }
     }
     let manifest =
-        Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone());
+        Manifest::new(cfg.seed, cfg.robots, cfg.trajectories, cfg.partition, cfg.generator.clone(), cfg.sim.clone())
+            .with_family(cfg.family.as_ref().map(|(f, _)| f.clone()));
     let pruned = dynforge_proto::run_dir::read_pruned(&cfg.dir).map_err(|e| {
         dir_err(std::io::Error::new(e.kind(), format!("reading {}: {e}", dynforge_proto::run_dir::PRUNED)))
     })?;
@@ -269,6 +284,10 @@ fn open_run_dir(
     }
     if let Some(before) = manifest.create_or_check(&cfg.dir)? {
         observer.message(&format!("growing the dataset from {before} to {} robots", cfg.robots));
+    }
+    if let Some((_, sources)) = &cfg.family {
+        // The manifest matched, so these are the bytes its hashes name: rewriting them repairs a lost copy.
+        sources.write_to(&cfg.dir).map_err(dir_err)?;
     }
     let (ledger, entries) = Ledger::open(&cfg.dir.join(LEDGER))?;
     let plan = Plan { seed: cfg.seed, robots: cfg.robots, trajectories: cfg.trajectories, partition: cfg.partition };

@@ -116,6 +116,17 @@ impl Session<'_> {
         if r.window.len == 0 || r.window.stride == 0 || r.window.ssr == 0 {
             return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
         }
+        if let Some(m) = dynforge_proto::manifest::Manifest::load(self.data).map_err(ReadError::from)?
+            && m.family.is_some()
+        {
+            return Err(SessionError::Setup(format!(
+                "{} is a robot's family (`generate --urdf`), labelled with its standard parameters; the estimators \
+                 learn the generator's robots and their 38 labels. Calibrate a robot of the family with `dynforge \
+                 identify --spread {}` (its prior is the family's)",
+                self.data.display(),
+                m.family.map_or(0.0, |f| f.spread)
+            )));
+        }
         let (previous, resume) = self.previous(observer)?;
         match previous.as_ref().map_or(r.model.kind, |c| match c.model {
             NetworkConfig::Transformer(_) => ModelKind::Transformer,

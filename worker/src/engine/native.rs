@@ -11,10 +11,9 @@
 //!   fixed, so RK4 integrates a smooth ODE and nothing chatters.
 
 use dynforge_robot::{Data, Model, aba, aba_locked, crba};
-use nalgebra::{Matrix6, Vector6};
+use nalgebra::DMatrix;
 
 use super::{Engine, EngineKind};
-use crate::trajectory::Config6;
 
 /// Periods between re-estimates of the viscous stiffness.
 const STIFFNESS_REFRESH: usize = 20;
@@ -25,32 +24,48 @@ pub struct NativeEngine<'m> {
     model: &'m Model,
     data: Data,
     dt: f64,
-    q: Config6,
-    qd: Config6,
-    coulomb: Config6,
-    viscous: Config6,
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    coulomb: Vec<f64>,
+    viscous: Vec<f64>,
     substeps: usize,
     min_substeps: usize,
     periods: usize,
+    net: Vec<f64>,
+    stages: Stages,
+}
+
+/// `A diag(d) A^T`, summed in the order nalgebra's fixed-size product sums it (so a 6-joint arm's substep count is
+/// what it was when the engine used 6x6 matrices); a dynamic-size product would go through `matrixmultiply`, whose
+/// kernels are chosen by the CPU at run time and would make shards differ between machines.
+pub(crate) fn congruence(a: &DMatrix<f64>, d: &[f64]) -> DMatrix<f64> {
+    let n = a.nrows();
+    DMatrix::from_fn(n, n, |r, c| {
+        let mut sum = a[(r, 0)] * d[0] * a[(c, 0)];
+        for k in 1..n {
+            sum += a[(r, k)] * d[k] * a[(c, k)];
+        }
+        sum
+    })
 }
 
 impl<'m> NativeEngine<'m> {
     /// An engine stepping `model` with control period `dt` [s].
     pub fn new(model: &'m Model, dt: f64) -> Self {
-        assert_eq!(model.dof(), 6, "the worker simulates 6-joint arms");
-        let coulomb = std::array::from_fn(|j| model.joints()[j].friction.coulomb);
-        let viscous = std::array::from_fn(|j| model.joints()[j].friction.viscous);
+        let n = model.dof();
         NativeEngine {
             model,
             data: Data::new(model),
             dt,
-            q: [0.0; 6],
-            qd: [0.0; 6],
-            coulomb,
-            viscous,
+            q: vec![0.0; n],
+            qd: vec![0.0; n],
+            coulomb: model.joints().iter().map(|j| j.friction.coulomb).collect(),
+            viscous: model.joints().iter().map(|j| j.friction.viscous).collect(),
             substeps: 1,
             min_substeps: 1,
             periods: 0,
+            net: vec![0.0; n],
+            stages: Stages::new(n),
         }
     }
 
@@ -66,49 +81,43 @@ impl<'m> NativeEngine<'m> {
         self.substeps
     }
 
-    fn mass_matrix(&mut self, q: &Config6) -> Matrix6<f64> {
-        let m = crba(self.model, &mut self.data, q);
-        Matrix6::from_fn(|r, c| m[(r, c)])
+    fn dof(&self) -> usize {
+        self.q.len()
     }
 
     /// Largest eigenvalue of `M^-1 D` (D = diag(mu_v)), via `L^-1 D L^-T` with `M = L L^T`.
     fn viscous_stiffness(&mut self) -> f64 {
-        let q = self.q;
-        let m = self.mass_matrix(&q);
+        let m = crba(self.model, &mut self.data, &self.q).clone();
         let Some(chol) = m.cholesky() else { return f64::INFINITY };
-        let l_inv = chol.l().try_inverse().unwrap_or_else(Matrix6::zeros);
-        let d = Matrix6::from_diagonal(&Vector6::from(self.viscous));
-        let s = l_inv * d * l_inv.transpose();
-        s.symmetric_eigenvalues().max()
+        let n = self.dof();
+        let l_inv = chol.l().try_inverse().unwrap_or_else(|| DMatrix::zeros(n, n));
+        congruence(&l_inv, &self.viscous).symmetric_eigenvalues().max()
     }
 
-    /// Joint accelerations with the joints in `stuck` locked, friction signs `sign` for the others.
-    fn acceleration(&mut self, q: &Config6, qd: &Config6, tau: &Config6, sign: &Config6, stuck: &[bool; 6]) -> Config6 {
-        let mut net = [0.0; 6];
-        for j in 0..6 {
-            net[j] = tau[j] - self.coulomb[j] * sign[j] - self.viscous[j] * qd[j];
+    /// The applied torque minus sliding friction, into `self.net`.
+    fn net(&mut self, qd: &[f64], tau: &[f64], sign: &[f64]) {
+        for j in 0..qd.len() {
+            self.net[j] = tau[j] - self.coulomb[j] * sign[j] - self.viscous[j] * qd[j];
         }
-        if !stuck.iter().any(|&s| s) {
-            let a = aba(self.model, &mut self.data, q, qd, &net);
-            return std::array::from_fn(|j| a[j]);
-        }
-        let (qdd, _) = self.locked_dynamics(q, qd, &net, stuck);
-        qdd
     }
 
-    /// Dynamics with the `stuck` joints locked: the free joints' accelerations and the torque each locked joint needs
-    /// to stay locked (to be compared with its Coulomb limit). `net` is the applied torque minus sliding friction.
-    fn locked_dynamics(&mut self, q: &Config6, qd: &Config6, net: &Config6, stuck: &[bool; 6]) -> (Config6, Config6) {
-        let qdd = aba_locked(self.model, &mut self.data, q, qd, net, stuck);
-        let qdd: Config6 = std::array::from_fn(|j| qdd[j]);
-        (qdd, std::array::from_fn(|j| self.data.tau[j]))
+    /// Joint accelerations with the joints in `stuck` locked, friction signs `sign` for the others, into `out`.
+    fn acceleration(&mut self, q: &[f64], qd: &[f64], tau: &[f64], sign: &[f64], stuck: &[bool], out: &mut [f64]) {
+        self.net(qd, tau, sign);
+        let a = if stuck.iter().any(|&s| s) {
+            aba_locked(self.model, &mut self.data, q, qd, &self.net, stuck)
+        } else {
+            aba(self.model, &mut self.data, q, qd, &self.net)
+        };
+        out.copy_from_slice(a);
     }
 
     /// Decides which joints at rest stay stuck, and the friction sign of every joint for the next substep.
-    fn classify(&mut self, tau: &Config6) -> ([bool; 6], Config6) {
-        let mut stuck = [false; 6];
-        let mut sign = [0.0; 6];
-        for j in 0..6 {
+    fn classify(&mut self, tau: &[f64]) -> (Vec<bool>, Vec<f64>) {
+        let n = self.dof();
+        let mut stuck = vec![false; n];
+        let mut sign = vec![0.0; n];
+        for j in 0..n {
             if self.qd[j] == 0.0 && self.coulomb[j] > 0.0 {
                 stuck[j] = true;
             } else {
@@ -116,10 +125,14 @@ impl<'m> NativeEngine<'m> {
             }
         }
         while stuck.iter().any(|&s| s) {
-            let (q, qd) = (self.q, self.qd);
-            let net: Config6 = std::array::from_fn(|j| tau[j] - self.coulomb[j] * sign[j] - self.viscous[j] * qd[j]);
-            let (_, needed) = self.locked_dynamics(&q, &qd, &net, &stuck);
-            let worst = (0..6)
+            let qd = std::mem::take(&mut self.qd);
+            self.net(&qd, tau, &sign);
+            self.qd = qd;
+            // With the stuck joints locked, `data.tau` holds the torque each needs to stay locked, to be compared
+            // with its Coulomb limit.
+            aba_locked(self.model, &mut self.data, &self.q, &self.qd, &self.net, &stuck);
+            let needed = &self.data.tau;
+            let worst = (0..n)
                 .filter(|&j| stuck[j])
                 .map(|j| (j, needed[j].abs() - self.coulomb[j]))
                 .max_by(|a, b| a.1.total_cmp(&b.1));
@@ -134,26 +147,50 @@ impl<'m> NativeEngine<'m> {
         (stuck, sign)
     }
 
-    fn substep(&mut self, tau: &Config6, h: f64) {
+    fn substep(&mut self, tau: &[f64], h: f64) {
         let (stuck, sign) = self.classify(tau);
-        let (q0, v0) = (self.q, self.qd);
-        let add = |x: &Config6, k: &Config6, s: f64| -> Config6 { std::array::from_fn(|j| x[j] + s * k[j]) };
-        let a1 = self.acceleration(&q0, &v0, tau, &sign, &stuck);
-        let (q2, v2) = (add(&q0, &v0, h / 2.0), add(&v0, &a1, h / 2.0));
-        let a2 = self.acceleration(&q2, &v2, tau, &sign, &stuck);
-        let (q3, v3) = (add(&q0, &v2, h / 2.0), add(&v0, &a2, h / 2.0));
-        let a3 = self.acceleration(&q3, &v3, tau, &sign, &stuck);
-        let (q4, v4) = (add(&q0, &v3, h), add(&v0, &a3, h));
-        let a4 = self.acceleration(&q4, &v4, tau, &sign, &stuck);
-        for j in 0..6 {
+        // Stages: states (q_i, v_i) and accelerations a_i, i = 1..4 (q_1, v_1 the current state).
+        let mut rk = std::mem::take(&mut self.stages);
+        rk.q[0].copy_from_slice(&self.q);
+        rk.v[0].copy_from_slice(&self.qd);
+        for i in 0..4 {
+            let (q, v) = (&rk.q[i], &rk.v[i]);
+            self.acceleration(q, v, tau, &sign, &stuck, &mut rk.a[i]);
+            if i < 3 {
+                // Stages 2 and 3 step half a substep from the start, stage 4 a whole one.
+                let s = if i < 2 { h / 2.0 } else { h };
+                for j in 0..self.dof() {
+                    rk.q[i + 1][j] = rk.q[0][j] + s * rk.v[i][j];
+                    rk.v[i + 1][j] = rk.v[0][j] + s * rk.a[i][j];
+                }
+            }
+        }
+        let (q, v, a) = (&rk.q, &rk.v, &rk.a);
+        for j in 0..self.dof() {
             if stuck[j] {
                 continue;
             }
-            self.q[j] = q0[j] + h / 6.0 * (v0[j] + 2.0 * v2[j] + 2.0 * v3[j] + v4[j]);
-            let v = v0[j] + h / 6.0 * (a1[j] + 2.0 * a2[j] + 2.0 * a3[j] + a4[j]);
+            self.q[j] = q[0][j] + h / 6.0 * (v[0][j] + 2.0 * v[1][j] + 2.0 * v[2][j] + v[3][j]);
+            let vel = v[0][j] + h / 6.0 * (a[0][j] + 2.0 * a[1][j] + 2.0 * a[2][j] + a[3][j]);
             // Coulomb friction cannot reverse a motion: a sign change means the joint stopped within the substep.
-            self.qd[j] = if self.coulomb[j] > 0.0 && sign[j] != 0.0 && v * sign[j] < 0.0 { 0.0 } else { v };
+            self.qd[j] = if self.coulomb[j] > 0.0 && sign[j] != 0.0 && vel * sign[j] < 0.0 { 0.0 } else { vel };
         }
+        self.stages = rk;
+    }
+}
+
+/// RK4's stage states and accelerations, kept between substeps so a step allocates nothing.
+#[derive(Default)]
+struct Stages {
+    q: [Vec<f64>; 4],
+    v: [Vec<f64>; 4],
+    a: [Vec<f64>; 4],
+}
+
+impl Stages {
+    fn new(n: usize) -> Self {
+        let z = || std::array::from_fn(|_| vec![0.0; n]);
+        Stages { q: z(), v: z(), a: z() }
     }
 }
 
@@ -162,13 +199,13 @@ impl Engine for NativeEngine<'_> {
         EngineKind::Native
     }
 
-    fn reset(&mut self, q: &Config6, qd: &Config6) {
-        self.q = *q;
-        self.qd = *qd;
+    fn reset(&mut self, q: &[f64], qd: &[f64]) {
+        self.q.copy_from_slice(q);
+        self.qd.copy_from_slice(qd);
         self.periods = 0;
     }
 
-    fn step(&mut self, tau: &Config6) {
+    fn step(&mut self, tau: &[f64]) {
         if self.periods.is_multiple_of(STIFFNESS_REFRESH) {
             let lambda = self.viscous_stiffness();
             // 1.5x margin for the inertia changing before the next estimate.
@@ -182,11 +219,11 @@ impl Engine for NativeEngine<'_> {
         }
     }
 
-    fn q(&self) -> &Config6 {
+    fn q(&self) -> &[f64] {
         &self.q
     }
 
-    fn qd(&self) -> &Config6 {
+    fn qd(&self) -> &[f64] {
         &self.qd
     }
 }

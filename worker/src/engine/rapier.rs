@@ -12,7 +12,6 @@ use dynforge_robot::Model;
 use rapier3d_f64::prelude::*;
 
 use super::{Engine, EngineKind};
-use crate::trajectory::Config6;
 
 /// Substeps per 1 ms period: energy drift falls first-order with the substep; 8 keeps the inverse-dynamics
 /// residual of the logged data near 1e-3.
@@ -31,15 +30,15 @@ pub struct RapierEngine {
     soft_bodies: SoftBodySet,
     ccd: CCDSolver,
     gravity: Vector,
-    /// Base, then link 1..6.
+    /// Base, then the links.
     bodies_of_links: Vec<RigidBodyHandle>,
     joints: Vec<MultibodyJointHandle>,
     /// Joint axes in the child frames.
     axes: Vec<Vector>,
     /// Generalized-coordinate index of each joint.
     dof: Vec<usize>,
-    q: Config6,
-    qd: Config6,
+    q: Vec<f64>,
+    qd: Vec<f64>,
 }
 
 fn vec3(v: &nalgebra::Vector3<f64>) -> Vector {
@@ -55,16 +54,17 @@ fn mat3(m: &nalgebra::Matrix3<f64>) -> Matrix {
 }
 
 impl RapierEngine {
-    /// An engine for `model` with control period `dt` and `substeps` integration substeps per period.
+    /// An engine for `model` (revolute joints: [`crate::simulate::engine_for`] refuses others) with control period
+    /// `dt` and `substeps` integration substeps per period.
     pub fn new(model: &Model, dt: f64, substeps: usize) -> Self {
-        assert_eq!(model.dof(), 6, "the worker simulates 6-joint arms");
+        let n = model.dof();
         let mut bodies = RigidBodySet::new();
         let mut multibody_joints = MultibodyJointSet::new();
         let base = bodies.insert(RigidBodyBuilder::fixed().can_sleep(false));
         let mut bodies_of_links = vec![base];
-        let mut joints = Vec::with_capacity(6);
-        let mut axes = Vec::with_capacity(6);
-        for i in 0..6 {
+        let mut joints = Vec::with_capacity(n);
+        let mut axes = Vec::with_capacity(n);
+        for i in 0..n {
             let inertia = model.inertia(i);
             let mass = MassProperties::with_inertia_matrix(vec3(&inertia.com()), inertia.mass, mat3(&inertia.i_com()));
             let body = bodies.insert(RigidBodyBuilder::dynamic().additional_mass_properties(mass).can_sleep(false));
@@ -101,21 +101,21 @@ impl RapierEngine {
             joints,
             axes,
             dof: Vec::new(),
-            q: [0.0; 6],
-            qd: [0.0; 6],
+            q: vec![0.0; n],
+            qd: vec![0.0; n],
         };
         // Forward kinematics first: it turns the root into a fixed joint, after which the DOF indices are final.
         let (mb, _) = engine.multibody_joints.get_mut(engine.joints[0]).expect("multibody exists");
         mb.forward_kinematics(&engine.bodies, true);
         mb.damping_mut().fill(0.0);
-        engine.dof = (0..6)
+        engine.dof = (0..n)
             .map(|j| {
                 let (mb, link) = engine.multibody_joints.get(engine.joints[j]).expect("joint exists");
                 mb.link(link).expect("link exists").assembly_id()
             })
             .collect();
         let (mb, _) = engine.multibody_joints.get_mut(engine.joints[0]).expect("multibody exists");
-        for j in 0..6 {
+        for j in 0..n {
             let f = &model.joints()[j].friction;
             mb.damping_mut()[engine.dof[j]] = f.viscous;
             mb.frictions_mut()[engine.dof[j]] = f.coulomb;
@@ -126,7 +126,7 @@ impl RapierEngine {
     fn read_state(&mut self) {
         let (mb, _) = self.multibody_joints.get(self.joints[0]).expect("multibody exists");
         let v = mb.generalized_velocity();
-        for j in 0..6 {
+        for j in 0..self.joints.len() {
             let (mb, link) = self.multibody_joints.get(self.joints[j]).expect("joint exists");
             self.q[j] = mb.link(link).expect("link exists").joint().coords()[3];
             self.qd[j] = v[self.dof[j]];
@@ -139,12 +139,12 @@ impl Engine for RapierEngine {
         EngineKind::Rapier
     }
 
-    fn reset(&mut self, q: &Config6, qd: &Config6) {
+    fn reset(&mut self, q: &[f64], qd: &[f64]) {
         self.read_state();
-        let current = self.q;
+        let current = self.q.clone();
         let (mb, _) = self.multibody_joints.get_mut(self.joints[0]).expect("multibody exists");
         let mut displacement = vec![0.0; mb.ndofs()];
-        for j in 0..6 {
+        for j in 0..self.joints.len() {
             displacement[self.dof[j]] = q[j] - current[j];
             mb.generalized_velocity_mut()[self.dof[j]] = qd[j];
         }
@@ -154,11 +154,11 @@ impl Engine for RapierEngine {
         self.read_state();
     }
 
-    fn step(&mut self, tau: &Config6) {
+    fn step(&mut self, tau: &[f64]) {
         for &h in &self.bodies_of_links {
             self.bodies[h].reset_torques(false);
         }
-        for j in 0..6 {
+        for j in 0..self.joints.len() {
             let (parent, child) = (self.bodies_of_links[j], self.bodies_of_links[j + 1]);
             let axis = self.bodies[child].rotation() * self.axes[j] * tau[j];
             self.bodies[child].add_torque(axis, true);
@@ -183,11 +183,11 @@ impl Engine for RapierEngine {
         self.read_state();
     }
 
-    fn q(&self) -> &Config6 {
+    fn q(&self) -> &[f64] {
         &self.q
     }
 
-    fn qd(&self) -> &Config6 {
+    fn qd(&self) -> &[f64] {
         &self.qd
     }
 }

@@ -1,6 +1,7 @@
 //! Finite Fourier series per joint (Swevers et al., 1997), the classical excitation: periodic, so a trajectory can
 //! be repeated and averaged, band-limited by its harmonic count, and with its derivatives in closed form. Written to
-//! start and end at rest at a given pose.
+//! start and end at rest at a given pose. A contract: `dynforge excite` writes it (`excitation-K.json`), the family's
+//! workers follow it.
 
 use serde::{Deserialize, Serialize};
 
@@ -17,6 +18,13 @@ pub struct Fourier {
     /// Per joint, the coefficients of harmonics 1..=L [rad/s or m/s].
     pub a: Vec<Vec<f64>>,
     pub b: Vec<Vec<f64>>,
+}
+
+/// An excitation as `dynforge excite` writes it (`excitation-K.json`): the series and the joints it moves, in order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Excitation {
+    pub joints: Vec<String>,
+    pub series: Fourier,
 }
 
 impl Fourier {

@@ -1,0 +1,151 @@
+//! A robot's family as a dataset's source: variants of one URDF (its kinematics and limits; its inertial parameters
+//! and friction drawn around the URDF's), each simulated on the excitations `dynforge excite` designed for it. The
+//! run directory keeps its own copy of the URDF and the excitations (`family/`), so workers on any host read the same
+//! bytes; the manifest keeps their hashes, so a resume with other files is refused.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::content_hash;
+use crate::fourier::Excitation;
+
+/// The run directory's family folder, and its URDF.
+pub const DIR: &str = "family";
+pub const URDF: &str = "robot.urdf";
+
+/// The file of excitation `k`, as `dynforge excite` names it.
+pub fn excitation_file(k: usize) -> String {
+    format!("excitation-{k}.json")
+}
+
+/// Relative spread of the drawn variants around the URDF's values: masses and second moments log-normally,
+/// centres of mass and products of inertia in proportion to the link's size (as `identify`'s prior reads a URDF).
+pub const DEFAULT_SPREAD: f64 = 0.3;
+
+/// The family of a run, as its manifest records it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Family {
+    /// FNV-1a of the URDF's bytes and of each excitation file's, in hex.
+    pub urdf_hash: String,
+    pub excitation_hashes: Vec<String>,
+    /// Joints welded at a position (`--fix NAME=POS`), as the excitations were designed.
+    pub welds: BTreeMap<String, f64>,
+    /// Relative spread of the inertial parameters ([`DEFAULT_SPREAD`]).
+    pub spread: f64,
+}
+
+/// Why a family's files cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum FamilyError {
+    #[error("{file}: {message}")]
+    File { file: String, message: String },
+}
+
+fn hex(bytes: &[u8]) -> String {
+    format!("{:016x}", content_hash(bytes))
+}
+
+/// A family's files: the URDF's text and the excitations' (as read, so hashes and copies are of the same bytes).
+#[derive(Debug, Clone)]
+pub struct Sources {
+    pub urdf: String,
+    pub excitations: Vec<String>,
+}
+
+impl Sources {
+    /// The URDF and the excitations of `dir` (`excitation-0.json`, `excitation-1.json`, ... as `dynforge excite`
+    /// writes them), each parsed once to name a bad file now rather than in every worker.
+    pub fn read(urdf: &Path, dir: &Path) -> Result<Self, FamilyError> {
+        let read = |p: &Path| {
+            std::fs::read_to_string(p)
+                .map_err(|e| FamilyError::File { file: p.display().to_string(), message: e.to_string() })
+        };
+        let urdf = read(urdf)?;
+        let mut excitations = Vec::new();
+        while dir.join(excitation_file(excitations.len())).exists() {
+            let path = dir.join(excitation_file(excitations.len()));
+            let text = read(&path)?;
+            parse_excitation(&text, &path.display().to_string())?;
+            excitations.push(text);
+        }
+        if excitations.is_empty() {
+            return Err(FamilyError::File {
+                file: dir.display().to_string(),
+                message: format!("no {} (write one with `dynforge excite`)", excitation_file(0)),
+            });
+        }
+        Ok(Sources { urdf, excitations })
+    }
+
+    /// The manifest's record of these files.
+    pub fn family(&self, welds: BTreeMap<String, f64>, spread: f64) -> Family {
+        Family {
+            urdf_hash: hex(self.urdf.as_bytes()),
+            excitation_hashes: self.excitations.iter().map(|e| hex(e.as_bytes())).collect(),
+            welds,
+            spread,
+        }
+    }
+
+    /// Copies the files into the run directory `run` (`family/`), each written atomically.
+    pub fn write_to(&self, run: &Path) -> std::io::Result<()> {
+        let dir = run.join(DIR);
+        std::fs::create_dir_all(&dir)?;
+        crate::run_dir::write_atomic(&dir.join(URDF), self.urdf.as_bytes())?;
+        for (k, text) in self.excitations.iter().enumerate() {
+            crate::run_dir::write_atomic(&dir.join(excitation_file(k)), text.as_bytes())?;
+        }
+        Ok(())
+    }
+
+    /// The copies in the run directory `run`, checked against the manifest's hashes.
+    pub fn of_run(run: &Path, family: &Family) -> Result<Self, FamilyError> {
+        let dir = run.join(DIR);
+        let read = |name: &str, hash: &str| {
+            let path = dir.join(name);
+            let text = std::fs::read_to_string(&path)
+                .map_err(|e| FamilyError::File { file: path.display().to_string(), message: e.to_string() })?;
+            match hex(text.as_bytes()) == hash {
+                true => Ok(text),
+                false => Err(FamilyError::File {
+                    file: path.display().to_string(),
+                    message: "differs from the file the run's manifest names (its hash)".into(),
+                }),
+            }
+        };
+        let urdf = read(URDF, &family.urdf_hash)?;
+        let excitations = (family.excitation_hashes.iter().enumerate())
+            .map(|(k, h)| read(&excitation_file(k), h))
+            .collect::<Result<_, _>>()?;
+        Ok(Sources { urdf, excitations })
+    }
+
+    /// The excitations, parsed.
+    pub fn parsed(&self) -> Result<Vec<Excitation>, FamilyError> {
+        (self.excitations.iter().enumerate()).map(|(k, text)| parse_excitation(text, &excitation_file(k))).collect()
+    }
+}
+
+fn parse_excitation(text: &str, file: &str) -> Result<Excitation, FamilyError> {
+    let e: Excitation = serde_json::from_str(text)
+        .map_err(|e| FamilyError::File { file: file.to_string(), message: format!("not an excitation: {e}") })?;
+    let s = &e.series;
+    let consistent = s.joints() == e.joints.len()
+        && s.a.len() == s.joints()
+        && s.b.len() == s.joints()
+        && s.a.iter().zip(&s.b).all(|(a, b)| a.len() == b.len())
+        && s.period.is_finite()
+        && s.period > 0.0;
+    match consistent {
+        true => Ok(e),
+        false => Err(FamilyError::File {
+            file: file.to_string(),
+            message: "an excitation needs one start value and one row of a and b coefficients per joint, and a \
+                      positive period"
+                .into(),
+        }),
+    }
+}

@@ -1,0 +1,217 @@
+//! The jobs of a robot's family (`generate --urdf`): robot `r` is a variant of the run's URDF, its inertial
+//! parameters and friction drawn around the URDF's with `identify`'s prior (every draw a physical body), and
+//! trajectory `t` is excitation `t` followed by the same controller and failure checks as the generator's robots.
+//! Shards carry the variant's URDF and its standard parameters as labels ([`standard_names`]).
+//!
+//! Self-collision is not checked here: the excitation was designed clear of it with the URDF's collision geometry
+//! (`dynforge excite`), the variants share the kinematics, and the controller follows the reference to within
+//! millimetres; a run that strays is caught by the timeout and limit checks.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use dynforge_identify::consistent::{CoordinatePrior, friction_coordinate};
+use dynforge_proto::family::{Family, FamilyError, Sources};
+use dynforge_proto::fourier::{Excitation, Fourier};
+use dynforge_proto::job::Job;
+use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY, SHARD_VERSION};
+use dynforge_robot::parameters::{standard_names, standard_parameters};
+use dynforge_robot::rng::{Rng, domain};
+use dynforge_robot::spatial::Se3;
+use dynforge_robot::urdf::{Welds, parse_welded, patch_welded};
+use dynforge_robot::{Model, ModelError};
+use dynforge_shard::Metadata;
+use nalgebra::Vector3;
+
+use crate::collision::Contact;
+use crate::job::{JobError, Outcome, write_shard};
+use crate::simulate::{Arm, Collides, Discard, Recording, Reference, SimConfig, simulate};
+
+/// Why a family cannot be simulated at all (as opposed to one variant's discard).
+#[derive(Debug, thiserror::Error)]
+pub enum FamilySetupError {
+    #[error(transparent)]
+    Files(#[from] FamilyError),
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error("{file}: {message}")]
+    Urdf { file: String, message: String },
+    #[error("the URDF's inertials are not physical bodies: {0}")]
+    Prior(#[from] dynforge_identify::IdentifyError),
+    #[error("{file} moves joints {found:?}, the URDF (with its welds) has {expected:?}")]
+    Joints { file: String, found: Vec<String>, expected: Vec<String> },
+}
+
+/// Excitation `t` then a hold at its start pose (where it ends).
+struct Excited<'a> {
+    series: &'a Fourier,
+    hold: f64,
+}
+
+impl Reference for Excited<'_> {
+    fn start(&self) -> &[f64] {
+        &self.series.start
+    }
+
+    fn goal(&self) -> &[f64] {
+        &self.series.start
+    }
+
+    fn total(&self) -> f64 {
+        self.series.period + self.hold
+    }
+
+    fn at(&self, t: f64) -> [Vec<f64>; 3] {
+        let n = self.series.joints();
+        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        // Periodic, at rest at both ends: past the period the series holds its start.
+        self.series.at(t.min(self.series.period), &mut q, &mut qd, &mut qdd);
+        [q, qd, qdd]
+    }
+}
+
+/// Position error [rad or m] at which a family's joint loop pushes through twice its expected Coulomb friction.
+pub const TRACKING: f64 = 0.005;
+
+/// See the module documentation: no self-collision check for a family.
+struct Unchecked;
+
+impl Collides for Unchecked {
+    fn contact(&self, _: &[Se3]) -> Option<Contact> {
+        None
+    }
+}
+
+/// The family of `urdf` on the excitations in `excitations` (as `dynforge excite --out` wrote them), checked as the
+/// workers will read it: its manifest record and its files.
+pub fn prepare(
+    urdf: &Path,
+    excitations: &Path,
+    welds: Welds,
+    spread: f64,
+) -> Result<(Family, Sources), FamilySetupError> {
+    let sources = Sources::read(urdf, excitations)?;
+    let family = sources.family(welds, spread);
+    FamilyRunner::of(&sources, &family).map_err(|e| match e {
+        // Name the user's file rather than the run directory's copy.
+        FamilySetupError::Model(e) => {
+            FamilySetupError::Urdf { file: urdf.display().to_string(), message: e.to_string() }
+        }
+        e => e,
+    })?;
+    Ok((family, sources))
+}
+
+/// A run's family, read once per worker.
+pub struct FamilyRunner {
+    urdf: String,
+    welds: Welds,
+    nominal: Model,
+    prior: CoordinatePrior,
+    excitations: Vec<Excitation>,
+    family: Family,
+}
+
+impl FamilyRunner {
+    /// The family of the run in `run_dir`, from its copies of the URDF and the excitations.
+    pub fn new(run_dir: &Path, family: &Family) -> Result<Self, FamilySetupError> {
+        Self::of(&Sources::of_run(run_dir, family)?, family)
+    }
+
+    /// The family of `sources` (the user's files, checked before a run starts).
+    pub fn of(sources: &Sources, family: &Family) -> Result<Self, FamilySetupError> {
+        let welds: Welds = family.welds.clone();
+        let nominal = parse_welded(&sources.urdf, dynforge_proto::family::URDF, &welds)?;
+        let excitations = sources.parsed()?;
+        let expected: Vec<String> = nominal.joints().iter().map(|j| j.name.clone()).collect();
+        for (k, e) in excitations.iter().enumerate() {
+            if e.joints != expected {
+                let file = dynforge_proto::family::excitation_file(k);
+                return Err(FamilySetupError::Joints { file, found: e.joints.clone(), expected });
+            }
+        }
+        let prior = CoordinatePrior::of(&nominal, family.spread)?;
+        Ok(FamilyRunner { urdf: sources.urdf.clone(), welds, nominal, prior, excitations, family: family.clone() })
+    }
+
+    /// Excitations, one per trajectory of a robot.
+    pub fn trajectories(&self) -> usize {
+        self.excitations.len()
+    }
+
+    /// Variant `robot` of the dataset of `seed`.
+    pub fn variant(&self, seed: u64, robot: u64) -> Result<Model, dynforge_identify::IdentifyError> {
+        let mut rng = Rng::stream(seed, &[domain::FAMILY, robot]);
+        self.prior.draw_variant(&self.nominal, || rng.normal())
+    }
+
+    /// The run's gains for this family: a joint's stiffness floor holds it within [`TRACKING`] of the reference
+    /// against twice the Coulomb friction the prior expects (the generator's floors are for its own robots, and a
+    /// 7-joint arm's light wrists would stick and slip behind the excitation without this).
+    fn gains(&self, sim: &SimConfig) -> SimConfig {
+        let n = self.nominal.dof();
+        let mut sim = sim.clone();
+        sim.gains.inertia_floor = (0..n)
+            .map(|j| {
+                let (omega, floor) = sim.gains.joint(j);
+                let coulomb = self.prior.std[friction_coordinate(n, j, 0)];
+                floor.max(2.0 * coulomb / TRACKING / (omega * omega))
+            })
+            .collect();
+        sim.gains.omega = (0..n).map(|j| sim.gains.joint(j).0).collect();
+        sim
+    }
+
+    /// Simulates a job without writing anything: the variant, and its recording or why it was discarded.
+    pub fn simulate(&self, job: &Job, sim: &SimConfig) -> Result<(Model, Result<Recording, Discard>), JobError> {
+        let sim = &self.gains(sim);
+        let model = self.variant(job.seed, job.robot).map_err(|e| JobError::Family(e.to_string()))?;
+        let series = &self.excitations[job.trajectory as usize % self.excitations.len()].series;
+        let last = model.dof() - 1;
+        let arm = Arm {
+            model: &model,
+            tip: (last, Vector3::zeros()),
+            collision: &Unchecked,
+            feedforward: Some(&self.nominal),
+        };
+        let result = simulate(&arm, &Excited { series, hold: sim.trajectory.hold }, sim);
+        Ok((model, result))
+    }
+
+    /// Runs a job and writes its shard into `out_dir`.
+    pub fn run(&self, job: &Job, sim: &SimConfig, out_dir: &Path) -> Result<Outcome, JobError> {
+        let (model, result) = self.simulate(job, sim)?;
+        let rec = match result {
+            Ok(rec) => rec,
+            Err(d) => return Ok(Outcome::Discarded(d)),
+        };
+        let (urdf, _) = patch_welded(&self.urdf, dynforge_proto::family::URDF, &model, &self.welds)?;
+        let metadata = self.metadata(job, sim, &model);
+        write_shard(&out_dir.join(job.shard_name(sim.engine.name())), &model, &urdf, &rec, &metadata)
+    }
+
+    fn metadata(&self, job: &Job, sim: &SimConfig, model: &Model) -> Metadata {
+        let job_meta = BTreeMap::from([
+            ("seed".to_string(), job.seed.to_string()),
+            ("robot".to_string(), job.robot.to_string()),
+            ("trajectory".to_string(), job.trajectory.to_string()),
+            ("engine".to_string(), sim.engine.name().to_string()),
+            ("dt".to_string(), format!("{}", sim.dt)),
+            ("family".to_string(), self.family.urdf_hash.clone()),
+            ("shard_version".to_string(), SHARD_VERSION.to_string()),
+            ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ]);
+        let labels =
+            standard_names(model).into_iter().zip(standard_parameters(model)).map(|(k, v)| (k, format!("{v}")));
+        let k = job.trajectory as usize % self.excitations.len();
+        let traj_meta = BTreeMap::from([
+            ("excitation".to_string(), self.family.excitation_hashes[k].clone()),
+            ("move_end".to_string(), format!("{}", self.excitations[k].series.period)),
+        ]);
+        BTreeMap::from([
+            (META_JOB.to_string(), job_meta),
+            (META_LABELS.to_string(), labels.collect()),
+            (META_TRAJECTORY.to_string(), traj_meta),
+        ])
+    }
+}
