@@ -108,6 +108,10 @@ fn a_family_shard_is_a_physical_variant_of_the_urdf_labelled_with_its_parameters
     let excite = excitations(&urdf, tmp.path());
     let out = tmp.path().join("family");
     run(&family_args(&urdf, excite.to_str().unwrap(), &out, &["--workers", "2"]));
+    // The estimators learn the generator's 38 labels: a family is refused up front, naming what serves it.
+    let o = dynforge(&["train", out.to_str().unwrap(), "--out", tmp.path().join("run").to_str().unwrap()]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("identify --spread 0.3"));
+    assert!(!tmp.path().join("run").exists(), "a refused train writes nothing");
     let fixed: Vec<String> = ["panda_finger_joint1", "panda_finger_joint2"].map(String::from).to_vec();
     let nominal =
         read_log(&first_shard(&out), Some((&std::fs::read_to_string(&urdf).unwrap(), &urdf)), &fixed).unwrap().model;

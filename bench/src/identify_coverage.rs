@@ -41,7 +41,7 @@ type Zs = BTreeMap<(&'static str, &'static str), Vec<f64>>;
 fn add(zs: &mut Zs, id: &Identification, truth: &Identification) {
     for ((kind, e), (_, t)) in parameters(id).into_iter().zip(parameters(truth)) {
         let decided = if e.decided == Decided::Torques { "torques" } else { "prior" };
-        let z = ((e.value - t.value) / e.std).abs();
+        let z = e.z(t.value).abs();
         for key in [(kind, decided), (kind, "all"), ("all", decided), ("all", "all")] {
             zs.entry(key).or_default().push(z);
         }

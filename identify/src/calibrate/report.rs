@@ -25,22 +25,48 @@ pub enum Decided {
 /// Posterior spread under this share of the prior's counts as decided by the torques.
 pub const INFORMED: f64 = 0.5;
 
+/// What a standard deviation is of: the parameter itself, or its natural logarithm (a mass, which the prior
+/// believes to within a factor: its error is log-normal, and a spread in kilograms cannot hold at one and at two
+/// standard deviations both).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scale {
+    Linear,
+    Log,
+}
+
 /// One identified parameter.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Estimated {
     pub value: f64,
-    /// Posterior standard deviation.
+    /// Posterior standard deviation, of the value or of its logarithm (`scale`).
     pub std: f64,
-    /// The URDF's value and the prior's standard deviation.
+    /// The URDF's value and the prior's standard deviation (same scale).
     pub urdf: f64,
     pub prior_std: f64,
     pub decided: Decided,
+    pub scale: Scale,
 }
 
 impl Estimated {
     fn new(value: f64, std: f64, urdf: f64, prior_std: f64) -> Self {
         let decided = if std < INFORMED * prior_std { Decided::Torques } else { Decided::Prior };
-        Estimated { value, std, urdf, prior_std, decided }
+        Estimated { value, std, urdf, prior_std, decided, scale: Scale::Linear }
+    }
+
+    /// A positive parameter from its linear spreads: the spreads of its logarithm, `std / value` (the delta
+    /// method; the log-Cholesky coordinates it is a function of are what the posterior is Gaussian in).
+    fn positive(value: f64, std: f64, urdf: f64, prior_std: f64) -> Self {
+        let linear = Estimated::new(value, std, urdf, prior_std);
+        Estimated { std: std / value, prior_std: prior_std / urdf, scale: Scale::Log, ..linear }
+    }
+
+    /// How many standard deviations the value lies from `truth`, on its scale.
+    pub fn z(&self, truth: f64) -> f64 {
+        match self.scale {
+            Scale::Linear => (self.value - truth) / self.std,
+            Scale::Log => (self.value / truth).ln() / self.std,
+        }
     }
 }
 
@@ -159,7 +185,7 @@ impl Identification {
                 let e = |k: usize| Estimated::new(value[k], std[k], urdf[k], prior_std[k]);
                 LinkEstimate {
                     name: f.model.links()[l].name.clone(),
-                    mass: e(0),
+                    mass: Estimated::positive(value[0], std[0], urdf[0], prior_std[0]),
                     com: [e(1), e(2), e(3)],
                     inertia: [e(4), e(5), e(6), e(7), e(8), e(9)],
                 }
@@ -253,7 +279,10 @@ impl Identification {
 
 fn cell(e: &Estimated) -> String {
     let mark = if e.decided == Decided::Prior { "*" } else { " " };
-    format!("{:>11.5} ±{:<9.2e}{mark}", e.value, e.std)
+    match e.scale {
+        Scale::Linear => format!("{:>11.5} ±{:<9.2e}{mark}", e.value, e.std),
+        Scale::Log => format!("{:>11.5} ×÷{:<8.4}{mark}", e.value, e.std.exp()),
+    }
 }
 
 impl std::fmt::Display for Identification {
@@ -277,7 +306,11 @@ impl std::fmt::Display for Identification {
         }
         writeln!(f, "effort: {} ({})", self.effort.name(), self.effort_reason)?;
         writeln!(f, "{} of {} parameter combinations identifiable", self.rank, self.parameters)?;
-        writeln!(f, "\nlinks (value ± standard deviation; * = the logs cannot tell it: the URDF's value and spread)")?;
+        writeln!(
+            f,
+            "\nlinks (value ± standard deviation; mass ×÷ a factor, one standard deviation of its logarithm; * = the \
+             logs cannot tell it: the URDF's value and spread)"
+        )?;
         writeln!(
             f,
             "  {:<22} {:>23} {:>23} {:>23} {:>23}",
@@ -329,5 +362,26 @@ impl std::fmt::Display for Identification {
             writeln!(f, "note: {n}")?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A mass believed to within a factor: its spread is of the logarithm, so a truth a factor `e^s` away is one
+    /// standard deviation away on either side (a linear spread would put the two sides at different distances).
+    #[test]
+    fn a_masss_spread_is_a_factor_and_its_z_is_symmetric_in_the_log() {
+        let e = Estimated::positive(2.0, 0.6, 2.5, 1.0);
+        assert_eq!(e.scale, Scale::Log);
+        assert!((e.std - 0.3).abs() < 1e-15 && (e.prior_std - 0.4).abs() < 1e-15);
+        for truth in [2.0 * 0.3f64.exp(), 2.0 / 0.3f64.exp()] {
+            assert!((e.z(truth).abs() - 1.0).abs() < 1e-12, "{truth}: z {}", e.z(truth));
+        }
+        // What decided it is judged on one scale for both: 0.6 < 0.5 * 1.0 is false, so the prior.
+        assert_eq!(e.decided, Decided::Prior);
+        let linear = Estimated::new(2.0, 0.6, 2.5, 1.0);
+        assert!((linear.z(2.6) - -1.0).abs() < 1e-12);
     }
 }
