@@ -80,6 +80,10 @@ pub struct PidGains {
     pub windup_fraction: f64,
     /// Control periods between gain schedules (inertia, Jacobian, stability scale).
     pub schedule_every: usize,
+    /// Scale each joint's loop by its own stability bound (`dt Kd_j (M^-1)_jj <= 1`) instead of all of them by the
+    /// coupled bound: a stiff light wrist then no longer softens the base. Off for the generator's robots.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub per_joint_scale: bool,
 }
 
 impl PidGains {
@@ -100,6 +104,7 @@ impl Default for PidGains {
             kg_fraction: 0.5,
             windup_fraction: 0.7,
             schedule_every: 5,
+            per_joint_scale: false,
         }
     }
 }

@@ -80,8 +80,12 @@ impl Pid {
         // `root M^-1 root` with `root` diagonal: each element scaled by its row's and its column's root.
         let scaled = DMatrix::from_fn(n, n, |r, c| root[r] * m_inv[(r, c)] * root[c]);
         let lambda = scaled.symmetric_eigenvalues().max();
-        let s = (1.0 / (dt * lambda)).min(1.0);
+        let coupled = (1.0 / (dt * lambda)).min(1.0);
         for j in 0..n {
+            let s = match g.per_joint_scale {
+                true => (1.0 / (dt * scaled.row(j).iter().map(|v| v.abs()).sum::<f64>())).min(1.0),
+                false => coupled,
+            };
             let kp_s = kp[j] * s * s;
             self.scheduled[j] = Scheduled {
                 kp: kp_s * (1.0 + g.kg_fraction * dz_dq[j].abs()),
@@ -110,5 +114,37 @@ impl Pid {
         }
         self.clamp_integral();
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two uncoupled joints, the second light and stiff beyond its discrete stability bound: one scale for all
+    /// softens the heavy joint too; a scale per joint leaves it alone and still bounds the light one.
+    #[test]
+    fn a_stiff_light_joint_softens_only_itself_when_scaled_per_joint() {
+        let m = DMatrix::from_diagonal(&nalgebra::DVector::from_vec(vec![1.0, 1e-4]));
+        let dt = 1e-3;
+        let gains = |per_joint_scale| PidGains {
+            omega: vec![25.0, 25.0],
+            inertia_floor: vec![0.0, 1.0],
+            per_joint_scale,
+            ..PidGains::default()
+        };
+        let scheduled = |per_joint| {
+            let mut pid = Pid::new(gains(per_joint), vec![100.0, 100.0], vec![0.0, 0.0]);
+            pid.schedule(&m, &[0.0, 0.0], dt);
+            pid.scheduled
+        };
+        let (coupled, own) = (scheduled(false), scheduled(true));
+        // Joint 1: Kp = 625, Kd = 50 unscaled (critical for its own inertia).
+        assert!((own[0].kp - 625.0).abs() < 1e-9 && (own[0].kd - 50.0).abs() < 1e-9, "{:?}", own[0]);
+        assert!(coupled[0].kp < 0.1 * own[0].kp, "one scale for all softens joint 1: {:?}", coupled[0]);
+        // Joint 2 is held to its bound either way: dt Kd / M = 1.
+        for s in [&coupled[1], &own[1]] {
+            assert!((dt * s.kd / 1e-4 - 1.0).abs() < 1e-9, "{s:?}");
+        }
     }
 }

@@ -160,6 +160,7 @@ impl FamilyRunner {
             })
             .collect();
         sim.gains.omega = (0..n).map(|j| sim.gains.joint(j).0).collect();
+        sim.gains.per_joint_scale = true;
         sim
     }
 
