@@ -112,6 +112,9 @@ fn a_family_shard_is_a_physical_variant_of_the_urdf_labelled_with_its_parameters
     let o = dynforge(&["train", out.to_str().unwrap(), "--out", tmp.path().join("run").to_str().unwrap()]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("identify --spread 0.3"));
     assert!(!tmp.path().join("run").exists(), "a refused train writes nothing");
+    let o = dynforge(&["info", first_shard(&out).to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("identify: yes") && said.contains("estimate: no: a shard of a robot's family"), "{said}");
     let fixed: Vec<String> = ["panda_finger_joint1", "panda_finger_joint2"].map(String::from).to_vec();
     let nominal =
         read_log(&first_shard(&out), Some((&std::fs::read_to_string(&urdf).unwrap(), &urdf)), &fixed).unwrap().model;

@@ -97,6 +97,12 @@ fn identify(log: Log) -> Result<String, String> {
 }
 
 fn estimate(files: &[PathBuf], bag: &Bag) -> Result<String, String> {
+    let job = bag.metadata.get(dynforge_proto::shard::META_JOB);
+    if job.is_some_and(|j| j.contains_key("family")) {
+        return Err("a shard of a robot's family (`generate --urdf`), labelled with its standard parameters: the \
+                    estimators learn the generator's robots; `identify` calibrates it"
+            .into());
+    }
     let rec = recording_of(&files[0], bag, None).map_err(|e| e.to_string())?;
     Ok(format!(
         "a {}-joint robot, {:.1} s of motion: with a model trained on its family (dynforge estimate --checkpoint RUN)",
