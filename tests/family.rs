@@ -88,6 +88,23 @@ fn a_family_dataset_is_reproducible_resumable_and_partitionable_and_refuses_othe
         union.extend(shard_hashes(&p));
     }
     assert_eq!(union, want, "partitions");
+    // Merged, they are the whole run, with the family's files the workers read.
+    let merged = tmp.path().join("merged");
+    run(&[
+        "merge",
+        "--out",
+        merged.to_str().unwrap(),
+        tmp.path().join("0of2").to_str().unwrap(),
+        tmp.path().join("1of2").to_str().unwrap(),
+    ]);
+    assert_eq!(shard_hashes(&merged), want, "merged");
+    for f in ["robot.urdf", "excitation-0.json", "excitation-1.json"] {
+        assert_eq!(
+            std::fs::read(merged.join("family").join(f)).unwrap(),
+            std::fs::read(whole.join("family").join(f)).unwrap(),
+            "{f}"
+        );
+    }
 
     // Another excitation in the same directory is another dataset: refused, naming what differs.
     let json = excite.join("excitation-1.json");

@@ -14,6 +14,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use dynforge_dataset::cache::partitions::{self, PartitionsError};
+use dynforge_proto::family::Sources;
 use dynforge_proto::manifest::{Manifest, ManifestError, Partition};
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
@@ -46,6 +47,8 @@ pub enum MergeError {
     Ledger(#[from] ledger::LedgerError),
     #[error(transparent)]
     Lock(#[from] crate::lock::LockError),
+    #[error(transparent)]
+    Family(#[from] dynforge_proto::family::FamilyError),
 }
 
 /// What a merge did.
@@ -114,6 +117,11 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     merged.partitions = parts.len();
     let manifest = Manifest { partition: Partition::WHOLE, ..first };
     merged.caches = caches.combine(parts, out, manifest.to_toml().as_bytes())?;
+    if let Some(family) = &manifest.family {
+        // A family's workers read the URDF and the excitations from the run directory: the merged run has them too.
+        let sources = Sources::of_run(by_index[&0], family)?;
+        sources.write_to(out).map_err(|e| io(out, e))?;
+    }
     // Last, so that an interrupted merge leaves no directory that passes for a finished run.
     manifest.create_or_check(out)?;
     Ok(merged)
