@@ -7,6 +7,10 @@
 //!
 //! Usage: DYNFORGE_PYTHON=.venv/bin/python dynforge-bench-identify-coverage [--nominals N] [--seconds S]
 //! [--spread X]
+//!
+//! Or on a robot's family (`generate --urdf`, simulated by dynforge's own engine, noise-free): each variant
+//! identified from the family's URDF with the family's spread, from its first log and from all its logs, against the
+//! truth its shard carries: `dynforge-bench-identify-coverage --family DIR [--robots N] [--fix JOINT ...]`.
 
 use std::collections::BTreeMap;
 
@@ -104,17 +108,74 @@ fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, secon
     Ok(())
 }
 
+/// Coverage over the variants of a family run directory: from each variant's first log, and from all its logs.
+fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Result<()> {
+    let manifest = dynforge_proto::manifest::Manifest::load(dir)?.context("a run directory")?;
+    let family = manifest.family.context("a family's run directory (generate --urdf)")?;
+    let urdf = std::fs::read_to_string(dir.join("family/robot.urdf"))?;
+    let options = Options {
+        spread: family.spread,
+        conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
+        fixed: fixed.to_vec(),
+    };
+    let mut shards: Vec<_> =
+        std::fs::read_dir(dir.join("shards"))?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>()?;
+    shards.sort();
+    for (case, first_only) in [("first log", true), ("all logs", false)] {
+        let (mut zs, mut failed, mut used) = (Zs::new(), 0, 0);
+        for r in 0..robots.min(manifest.robots) {
+            let prefix = format!("r{r:06}-");
+            let mut mine: Vec<_> = shards
+                .iter()
+                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with(&prefix)))
+                .cloned()
+                .collect();
+            if mine.is_empty() {
+                continue;
+            }
+            if first_only {
+                mine.truncate(1);
+            }
+            let truth = read_log(&mine[0], None, fixed)?.model;
+            match identify_logs(&mine, Some((&urdf, "robot.urdf")), &options) {
+                Ok((id, _)) => {
+                    let mut at_truth = id.clone();
+                    at_truth.report_values_of(&truth);
+                    add(&mut zs, &id, &at_truth);
+                    used += 1;
+                }
+                Err(e) => {
+                    failed += 1;
+                    eprintln!("robot {r} ({case}): {e}");
+                }
+            }
+        }
+        eprintln!("{case}: {used} variants identified, {failed} refused");
+        print(&format!("family {case}"), &mut zs);
+    }
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut nominals, mut seconds, mut spread) = (20u64, 30.0, Options::default().spread);
+    let (mut family, mut robots, mut fixed) = (None, 100u64, Vec::new());
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
         match a.as_str() {
             "--nominals" => nominals = value()?.parse()?,
             "--seconds" => seconds = value()?.parse()?,
             "--spread" => spread = value()?.parse()?,
+            "--family" => family = Some(std::path::PathBuf::from(value()?)),
+            "--robots" => robots = value()?.parse()?,
+            "--fix" => fixed.push(value()?),
             _ => bail!("unknown option {a}"),
         }
+    }
+    if let Some(dir) = family {
+        println!("| case | parameters | decided by | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
+        println!("|---|---|---|---|---|---|---|");
+        return family_coverage(&dir, robots, &fixed);
     }
     let py = std::env::var("DYNFORGE_PYTHON").context("DYNFORGE_PYTHON: the venv of scripts/venv.sh")?;
     let dir = std::env::temp_dir().join(format!("dynforge-identify-coverage-{}", std::process::id()));
