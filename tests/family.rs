@@ -115,6 +115,15 @@ fn a_family_dataset_is_reproducible_resumable_and_partitionable_and_refuses_othe
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("family.excitation_hashes"), "{err}");
     assert_eq!(shard_hashes(&whole), want, "a refused run touches nothing");
+
+    // Excitations of other joints (the fingers not welded): refused before anything is made, naming the file.
+    let other = tmp.path().join("other");
+    let mut args = vec!["generate", "--urdf", urdf.as_str(), "--excitation", ex, "--out", other.to_str().unwrap()];
+    args.extend(["--robots", "2"]);
+    let o = dynforge(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains(&format!("{ex}/excitation-0.json moves joints")), "{err}");
+    assert!(!other.exists(), "a refused family creates no directory");
 }
 
 #[test]

@@ -34,8 +34,6 @@ pub enum FamilySetupError {
     Files(#[from] FamilyError),
     #[error(transparent)]
     Model(#[from] ModelError),
-    #[error("{file}: {message}")]
-    Urdf { file: String, message: String },
     #[error("the URDF's inertials are not physical bodies: {0}")]
     Prior(#[from] dynforge_identify::IdentifyError),
     #[error("{file} moves joints {found:?}, the URDF (with its welds) has {expected:?}")]
@@ -93,13 +91,7 @@ pub fn prepare(
 ) -> Result<(Family, Sources), FamilySetupError> {
     let sources = Sources::read(urdf, excitations)?;
     let family = sources.family(welds, spread);
-    FamilyRunner::of(&sources, &family).map_err(|e| match e {
-        // Name the user's file rather than the run directory's copy.
-        FamilySetupError::Model(e) => {
-            FamilySetupError::Urdf { file: urdf.display().to_string(), message: e.to_string() }
-        }
-        e => e,
-    })?;
+    FamilyRunner::of(&sources, &family, urdf, excitations)?;
     Ok((family, sources))
 }
 
@@ -116,18 +108,19 @@ pub struct FamilyRunner {
 impl FamilyRunner {
     /// The family of the run in `run_dir`, from its copies of the URDF and the excitations.
     pub fn new(run_dir: &Path, family: &Family) -> Result<Self, FamilySetupError> {
-        Self::of(&Sources::of_run(run_dir, family)?, family)
+        let dir = run_dir.join(dynforge_proto::family::DIR);
+        Self::of(&Sources::of_run(run_dir, family)?, family, &dir.join(dynforge_proto::family::URDF), &dir)
     }
 
-    /// The family of `sources` (the user's files, checked before a run starts).
-    pub fn of(sources: &Sources, family: &Family) -> Result<Self, FamilySetupError> {
+    /// The family of `sources` (read from the URDF `urdf` and the excitations in `dir`, which messages name).
+    fn of(sources: &Sources, family: &Family, urdf: &Path, dir: &Path) -> Result<Self, FamilySetupError> {
         let welds: Welds = family.welds.clone();
-        let nominal = parse_welded(&sources.urdf, dynforge_proto::family::URDF, &welds)?;
+        let nominal = parse_welded(&sources.urdf, &urdf.display().to_string(), &welds)?;
         let excitations = sources.parsed()?;
         let expected: Vec<String> = nominal.joints().iter().map(|j| j.name.clone()).collect();
         for (k, e) in excitations.iter().enumerate() {
             if e.joints != expected {
-                let file = dynforge_proto::family::excitation_file(k);
+                let file = dir.join(dynforge_proto::family::excitation_file(k)).display().to_string();
                 return Err(FamilySetupError::Joints { file, found: e.joints.clone(), expected });
             }
         }
