@@ -50,10 +50,10 @@ pub struct GenerateArgs {
     #[arg(long, requires = "urdf", value_name = "DIR")]
     excitation: Option<PathBuf>,
     /// A family's relative spread of masses and inertias (log-normal), centres of mass and friction.
-    #[arg(long, default_value_t = dynforge_proto::family::DEFAULT_SPREAD, value_parser = positive)]
+    #[arg(long, default_value_t = dynforge_proto::family::DEFAULT_SPREAD, value_parser = positive, requires = "urdf")]
     spread: f64,
     /// A family's joint welded at a position, as the excitations were designed (`excite --fix`).
-    #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
+    #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld, requires = "urdf")]
     fix: Vec<(String, f64)>,
 }
 

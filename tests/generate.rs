@@ -186,6 +186,11 @@ fn bad_inputs_fail_clearly_and_lose_nothing() {
     // A robot's tour has 16 waypoints, so 16 trajectories; a timeout must be a finite number of seconds.
     let o = dynforge(&generate_args(dir.path(), "1", "17", &[]));
     assert!(!o.status.success() && stderr(&o).contains("--trajectories 17 is more than"), "{}", stderr(&o));
+    // A family's settings without a family would be silently ignored: refused.
+    for extra in [["--fix", "j1"], ["--spread", "0.2"]] {
+        let o = dynforge(&generate_args(dir.path(), "1", "1", &extra));
+        assert!(!o.status.success() && stderr(&o).contains("--urdf"), "{extra:?}: {}", stderr(&o));
+    }
     for t in ["inf", "0", "-1", "NaN", "1e300"] {
         let o = dynforge(&generate_args(dir.path(), "1", "1", &[&format!("--job-timeout={t}")]));
         assert!(o.status.code() == Some(1) && stderr(&o).contains("--job-timeout"), "{t}: {}", stderr(&o));
