@@ -44,6 +44,12 @@ pub enum FamilyError {
     File { file: String, message: String },
 }
 
+/// The text of `path`, or an error naming it.
+fn read_text(path: &Path) -> Result<String, FamilyError> {
+    std::fs::read_to_string(path)
+        .map_err(|e| FamilyError::File { file: path.display().to_string(), message: e.to_string() })
+}
+
 fn hex(bytes: &[u8]) -> String {
     format!("{:016x}", content_hash(bytes))
 }
@@ -59,15 +65,11 @@ impl Sources {
     /// The URDF and the excitations of `dir` (`excitation-0.json`, `excitation-1.json`, ... as `dynforge excite`
     /// writes them), each parsed once to name a bad file now rather than in every worker.
     pub fn read(urdf: &Path, dir: &Path) -> Result<Self, FamilyError> {
-        let read = |p: &Path| {
-            std::fs::read_to_string(p)
-                .map_err(|e| FamilyError::File { file: p.display().to_string(), message: e.to_string() })
-        };
-        let urdf = read(urdf)?;
+        let urdf = read_text(urdf)?;
         let mut excitations = Vec::new();
         while dir.join(excitation_file(excitations.len())).exists() {
             let path = dir.join(excitation_file(excitations.len()));
-            let text = read(&path)?;
+            let text = read_text(&path)?;
             parse_excitation(&text, &path.display().to_string())?;
             excitations.push(text);
         }
@@ -106,8 +108,7 @@ impl Sources {
         let dir = run.join(DIR);
         let read = |name: &str, hash: &str| {
             let path = dir.join(name);
-            let text = std::fs::read_to_string(&path)
-                .map_err(|e| FamilyError::File { file: path.display().to_string(), message: e.to_string() })?;
+            let text = read_text(&path)?;
             match hex(text.as_bytes()) == hash {
                 true => Ok(text),
                 false => Err(FamilyError::File {

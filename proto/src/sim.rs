@@ -80,8 +80,9 @@ pub struct PidGains {
     pub windup_fraction: f64,
     /// Control periods between gain schedules (inertia, Jacobian, stability scale).
     pub schedule_every: usize,
-    /// Scale each joint's loop by its own stability bound (`dt Kd_j (M^-1)_jj <= 1`) instead of all of them by the
-    /// coupled bound: a stiff light wrist then no longer softens the base. Off for the generator's robots.
+    /// Scale each joint's loop by its own row of the stability bound (`dt` times the Gershgorin row sum of
+    /// `Kd^1/2 M^-1 Kd^1/2` at most 1) instead of all of them by its largest eigenvalue: a stiff light wrist then no
+    /// longer softens the base. Off for the generator's robots.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub per_joint_scale: bool,
 }

@@ -11,12 +11,11 @@ use parry3d_f64::math::{Pose, Vec3};
 use parry3d_f64::query::intersection_test;
 use parry3d_f64::shape::{ConvexPolyhedron, Cuboid, Cylinder, Shape};
 
-/// What two bodies collided. Body 0 is the pedestal, body k (1-6) is link k; a URDF's bodies by name.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// What two bodies collided. Body 0 is the pedestal, body k (1-6) is link k.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Contact {
     SelfCollision { a: usize, b: usize },
     Ground { link: usize },
-    Named { a: String, b: String },
 }
 
 impl std::fmt::Display for Contact {
@@ -25,7 +24,6 @@ impl std::fmt::Display for Contact {
             Contact::SelfCollision { a: 0, b } => write!(f, "link {b} hits the pedestal"),
             Contact::SelfCollision { a, b } => write!(f, "link {a} hits link {b}"),
             Contact::Ground { link } => write!(f, "link {link} hits the ground"),
-            Contact::Named { a, b } => write!(f, "{a} hits {b}"),
         }
     }
 }

@@ -14,7 +14,7 @@ use dynforge_identify::consistent::{CoordinatePrior, friction_coordinate};
 use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
-use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY, SHARD_VERSION};
+use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::spatial::Se3;
@@ -24,7 +24,7 @@ use dynforge_shard::Metadata;
 use nalgebra::Vector3;
 
 use crate::collision::Contact;
-use crate::job::{JobError, Outcome, write_shard};
+use crate::job::{JobError, Outcome, job_metadata, write_shard};
 use crate::simulate::{Arm, Collides, Discard, Recording, Reference, SimConfig, simulate};
 
 /// Why a family cannot be simulated at all (as opposed to one variant's discard).
@@ -152,7 +152,6 @@ impl FamilyRunner {
                 floor.max(2.0 * coulomb / TRACKING / (omega * omega))
             })
             .collect();
-        sim.gains.omega = (0..n).map(|j| sim.gains.joint(j).0).collect();
         sim.gains.per_joint_scale = true;
         sim
     }
@@ -186,16 +185,7 @@ impl FamilyRunner {
     }
 
     fn metadata(&self, job: &Job, sim: &SimConfig, model: &Model) -> Metadata {
-        let job_meta = BTreeMap::from([
-            ("seed".to_string(), job.seed.to_string()),
-            ("robot".to_string(), job.robot.to_string()),
-            ("trajectory".to_string(), job.trajectory.to_string()),
-            ("engine".to_string(), sim.engine.name().to_string()),
-            ("dt".to_string(), format!("{}", sim.dt)),
-            ("family".to_string(), self.family.urdf_hash.clone()),
-            ("shard_version".to_string(), SHARD_VERSION.to_string()),
-            ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-        ]);
+        let job_meta = job_metadata(job, sim, ("family", self.family.urdf_hash.clone()));
         let labels =
             standard_names(model).into_iter().zip(standard_parameters(model)).map(|(k, v)| (k, format!("{v}")));
         let k = job.trajectory as usize % self.excitations.len();

@@ -119,16 +119,7 @@ impl Runner {
     fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {
         let y = labels_of(&robot.model)?;
         let joined = |q: &Config6| q.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(" ");
-        let job_meta = BTreeMap::from([
-            ("seed".to_string(), job.seed.to_string()),
-            ("robot".to_string(), job.robot.to_string()),
-            ("trajectory".to_string(), job.trajectory.to_string()),
-            ("engine".to_string(), self.sim.engine.name().to_string()),
-            ("dt".to_string(), format!("{}", self.sim.dt)),
-            ("generator_version".to_string(), GENERATOR_VERSION.to_string()),
-            ("shard_version".to_string(), SHARD_VERSION.to_string()),
-            ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-        ]);
+        let job_meta = job_metadata(job, &self.sim, ("generator_version", GENERATOR_VERSION.to_string()));
         let label_meta = LABELS.iter().zip(y).map(|(l, v)| (l.name.to_string(), format!("{v}"))).collect();
         let traj_meta = BTreeMap::from([
             ("start".to_string(), joined(&mv.start)),
@@ -156,6 +147,21 @@ pub fn simulate_tour(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Resu
         feedforward: None,
     };
     simulate(&arm, mv, cfg)
+}
+
+/// A shard's job record: the job, the simulation, the versions, and where its robot comes from (`source`: the
+/// generator's version, or the family's URDF hash).
+pub(crate) fn job_metadata(job: &Job, sim: &SimConfig, source: (&str, String)) -> BTreeMap<String, String> {
+    BTreeMap::from([
+        ("seed".to_string(), job.seed.to_string()),
+        ("robot".to_string(), job.robot.to_string()),
+        ("trajectory".to_string(), job.trajectory.to_string()),
+        ("engine".to_string(), sim.engine.name().to_string()),
+        ("dt".to_string(), format!("{}", sim.dt)),
+        (source.0.to_string(), source.1),
+        ("shard_version".to_string(), SHARD_VERSION.to_string()),
+        ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+    ])
 }
 
 /// Writes the shard of a recording of `model` (described by `urdf`) at `path`.

@@ -145,7 +145,7 @@ pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result
         Some(_) => vec![0.0; n],
         None => dynforge_robot::gravity_torque(model, &mut data, start).to_vec(),
     };
-    let mut believed = arm.feedforward.map(Data::new);
+    let mut feedforward = arm.feedforward.map(|m| (m, Data::new(m)));
     let mut pid = Pid::new(cfg.gains.clone(), effort.clone(), hold);
     let rest = vec![0.0; n];
     engine.reset(start, &rest);
@@ -185,10 +185,7 @@ pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result
         let [q_ref, qd_ref, qdd_ref] = reference.at(t);
         let e: Vec<f64> = (0..n).map(|j| q_ref[j] - q[j]).collect();
         let ed: Vec<f64> = (0..n).map(|j| qd_ref[j] - qd[j]).collect();
-        let ff = match (arm.feedforward, believed.as_mut()) {
-            (Some(m), Some(d)) => Some(rnea(m, d, &q_ref, &qd_ref, &qdd_ref).to_vec()),
-            _ => None,
-        };
+        let ff = feedforward.as_mut().map(|(m, d)| rnea(m, d, &q_ref, &qd_ref, &qdd_ref).to_vec());
         let tau = pid.update(&e, &ed, ff.as_deref(), cfg.dt);
         if (0..n).any(|j| tau[j].abs() >= effort[j]) {
             saturated += 1;

@@ -49,6 +49,13 @@ pub(crate) fn congruence(a: &DMatrix<f64>, d: &[f64]) -> DMatrix<f64> {
     })
 }
 
+/// The applied torque minus sliding friction (`coulomb` and `viscous` per joint), into `net`.
+fn sliding_net(net: &mut [f64], tau: &[f64], (coulomb, viscous): (&[f64], &[f64]), sign: &[f64], qd: &[f64]) {
+    for j in 0..net.len() {
+        net[j] = tau[j] - coulomb[j] * sign[j] - viscous[j] * qd[j];
+    }
+}
+
 impl<'m> NativeEngine<'m> {
     /// An engine stepping `model` with control period `dt` [s].
     pub fn new(model: &'m Model, dt: f64) -> Self {
@@ -94,16 +101,9 @@ impl<'m> NativeEngine<'m> {
         congruence(&l_inv, &self.viscous).symmetric_eigenvalues().max()
     }
 
-    /// The applied torque minus sliding friction, into `self.net`.
-    fn net(&mut self, qd: &[f64], tau: &[f64], sign: &[f64]) {
-        for j in 0..qd.len() {
-            self.net[j] = tau[j] - self.coulomb[j] * sign[j] - self.viscous[j] * qd[j];
-        }
-    }
-
     /// Joint accelerations with the joints in `stuck` locked, friction signs `sign` for the others, into `out`.
     fn acceleration(&mut self, q: &[f64], qd: &[f64], tau: &[f64], sign: &[f64], stuck: &[bool], out: &mut [f64]) {
-        self.net(qd, tau, sign);
+        sliding_net(&mut self.net, tau, (&self.coulomb, &self.viscous), sign, qd);
         let a = if stuck.iter().any(|&s| s) {
             aba_locked(self.model, &mut self.data, q, qd, &self.net, stuck)
         } else {
@@ -125,9 +125,7 @@ impl<'m> NativeEngine<'m> {
             }
         }
         while stuck.iter().any(|&s| s) {
-            let qd = std::mem::take(&mut self.qd);
-            self.net(&qd, tau, &sign);
-            self.qd = qd;
+            sliding_net(&mut self.net, tau, (&self.coulomb, &self.viscous), &sign, &self.qd);
             // With the stuck joints locked, `data.tau` holds the torque each needs to stay locked, to be compared
             // with its Coulomb limit.
             aba_locked(self.model, &mut self.data, &self.q, &self.qd, &self.net, &stuck);
