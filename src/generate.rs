@@ -101,11 +101,10 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         Ok(d) if !d.is_zero() => d,
         _ => bail!("--job-timeout {}: expected a positive finite number of seconds", args.job_timeout),
     };
-    let workers = args.workers.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let exe = std::env::current_exe().context("locating the dynforge executable to start workers")?;
+    let workers = args.workers.unwrap_or_else(default_workers);
     let family = match (&args.urdf, &args.excitation) {
         (Some(urdf), Some(dir)) => {
-            Some(dynforge_worker::family::prepare(urdf, dir, args.fix.into_iter().collect(), args.spread)?)
+            Some(dynforge_worker::family::prepare(urdf, dir, args.fix.into_iter().collect(), args.spread, engine)?)
         }
         _ => None,
     };
@@ -125,28 +124,48 @@ pub fn generate(args: GenerateArgs) -> Result<()> {
         family,
         job_timeout,
         max_attempts: 3,
-        worker_command: vec![exe.into(), "worker".into()],
+        worker_command: worker_command()?,
     };
+    execute(&cfg, &mut std::io::stdout())
+}
+
+/// Runs the generation `cfg` with a live display, and reports what was made to `out` (failed jobs are an error
+/// naming the directory; discarded ones are not).
+pub fn execute(cfg: &GenerateConfig, out: &mut dyn std::io::Write) -> Result<()> {
     eprintln!(
-        "generating {} robots x {trajectories} trajectories (seed {}, partition {}, engine {}) into {} with {workers} workers",
-        args.robots,
-        args.seed,
-        args.partition,
-        engine.name(),
-        args.out.display()
+        "generating {} robots x {} trajectories (seed {}, partition {}, engine {}) into {} with {} workers",
+        cfg.robots,
+        cfg.trajectories,
+        cfg.seed,
+        cfg.partition,
+        cfg.sim.engine.name(),
+        cfg.dir.display(),
+        cfg.workers
     );
     let start = Instant::now();
     let mut display = GenerationDisplay::default();
-    let progress = run::generate(&cfg, &mut display)?;
+    let progress = run::generate(cfg, &mut display)?;
     drop(display);
     let wall = start.elapsed().as_secs_f64();
     let c = progress.cpu_seconds;
     let cpu = format!("; coordinator CPU {c:.2} s ({:.1} % of one core)", 100.0 * c / wall);
-    println!(
+    writeln!(
+        out,
         "{} jobs: {} ({} resumed from an earlier run) in {wall:.1} s{cpu}",
-        progress.total, progress, progress.resumed,
-    );
-    Ok(progress.check_failures(&args.out)?)
+        progress.total, progress, progress.resumed
+    )?;
+    Ok(progress.check_failures(&cfg.dir)?)
+}
+
+/// The command that starts a worker process: this executable's `worker`.
+pub fn worker_command() -> Result<Vec<std::ffi::OsString>> {
+    let exe = std::env::current_exe().context("locating the dynforge executable to start workers")?;
+    Ok(vec![exe.into(), "worker".into()])
+}
+
+/// Worker processes when none are asked for: one per CPU core.
+pub fn default_workers() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
 }
 
 pub fn status(args: StatusArgs) -> Result<()> {

@@ -21,6 +21,40 @@ pub struct IdentifyArgs {
     /// the joint's effort limit.
     #[arg(long, default_value_t = 0.5, value_parser = positive)]
     spread: f64,
+    #[command(flatten)]
+    signals: Signals,
+    /// Weld this joint at its mean logged position (a joint the logs do not move, e.g. a gripper's); repeatable.
+    #[arg(long, value_name = "JOINT")]
+    fix: Vec<String>,
+    #[command(flatten)]
+    output: Output,
+}
+
+/// Where a calibration goes (shared by `identify` and `calibrate`).
+#[derive(Args)]
+pub struct Output {
+    /// Logs held out of the calibration: the torque error of the URDF as given and of the calibrated one on them is
+    /// reported.
+    #[arg(long, value_name = "LOG")]
+    pub holdout: Vec<PathBuf>,
+    /// Where to write the calibrated URDF (default: the first log with extension .calibrated.urdf).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print the result as JSON instead of tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl Output {
+    /// The calibrated URDF's path: `--out`, else the first log's with extension .calibrated.urdf.
+    pub fn path(&self, logs: &[PathBuf]) -> PathBuf {
+        self.out.clone().unwrap_or_else(|| logs[0].with_extension("calibrated.urdf"))
+    }
+}
+
+/// How the logs' signals are read (shared by `identify` and `calibrate`).
+#[derive(Args)]
+pub struct Signals {
     /// What the logged effort is: the torque held until the next sample (zero-order hold, a commanded torque), or
     /// the torque sampled at its stamp (a measured one). Auto: the one that fits the logs better.
     #[arg(long, value_enum, default_value_t = Effort::Auto)]
@@ -32,19 +66,24 @@ pub struct IdentifyArgs {
     /// Low-pass cut-off [Hz] for velocities from positions (default: chosen from the positions' noise).
     #[arg(long, value_parser = positive)]
     cutoff: Option<f64>,
-    /// Weld this joint at its mean logged position (a joint the logs do not move, e.g. a gripper's); repeatable.
-    #[arg(long, value_name = "JOINT")]
-    fix: Vec<String>,
-    /// Logs held out of the calibration: the torque error of the URDF as given and of the calibrated one on them is
-    /// reported.
-    #[arg(long, value_name = "LOG")]
-    holdout: Vec<PathBuf>,
-    /// Where to write the calibrated URDF (default: the first log with extension .calibrated.urdf).
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Print the result as JSON instead of tables.
-    #[arg(long)]
-    json: bool,
+}
+
+impl Signals {
+    pub fn conditioning(&self) -> Conditioning {
+        Conditioning {
+            velocity: match self.velocity {
+                Velocity::Auto => None,
+                Velocity::Logged => Some(VelocitySource::Logged),
+                Velocity::Positions => Some(VelocitySource::Positions),
+            },
+            effort: match self.effort {
+                Effort::Auto => None,
+                Effort::Held => Some(EffortConvention::Held),
+                Effort::Sampled => Some(EffortConvention::Sampled),
+            },
+            cutoff: self.cutoff,
+        }
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -62,36 +101,23 @@ enum Velocity {
 }
 
 pub fn run(args: IdentifyArgs) -> Result<()> {
-    let out = args.out.clone().unwrap_or_else(|| args.logs[0].with_extension("calibrated.urdf"));
-    let given = match &args.urdf {
-        Some(path) => Some((
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?,
-            path.display().to_string(),
-        )),
-        None => None,
-    };
+    let out = args.output.path(&args.logs);
+    let given = read_urdf(args.urdf.as_deref())?;
     let document = given.as_ref().map(|(text, source)| (text.as_str(), source.as_str()));
-    let options = Options {
-        spread: args.spread,
-        conditioning: Conditioning {
-            velocity: match args.velocity {
-                Velocity::Auto => None,
-                Velocity::Logged => Some(VelocitySource::Logged),
-                Velocity::Positions => Some(VelocitySource::Positions),
-            },
-            effort: match args.effort {
-                Effort::Auto => None,
-                Effort::Held => Some(EffortConvention::Held),
-                Effort::Sampled => Some(EffortConvention::Sampled),
-            },
-            cutoff: args.cutoff,
-        },
-        fixed: args.fix.clone(),
-    };
-    let calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.holdout, &out)?;
-    match args.json {
+    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed: args.fix.clone() };
+    let calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;
+    match args.output.json {
         true => println!("{}", serde_json::to_string_pretty(&calibrated.json()?)?),
         false => print!("{calibrated}"),
     }
     Ok(())
+}
+
+/// The URDF at `path` (its text and its name in messages), if given.
+pub fn read_urdf(path: Option<&std::path::Path>) -> Result<Option<(String, String)>> {
+    path.map(|p| {
+        let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+        Ok((text, p.display().to_string()))
+    })
+    .transpose()
 }

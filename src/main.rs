@@ -1,5 +1,6 @@
 //! The `dynforge` command line: parses arguments and dispatches to the library crates.
 
+mod calibrate;
 mod dataset;
 mod estimate;
 mod evaluate;
@@ -73,6 +74,10 @@ enum Command {
     /// rest, free of self-collision with its collision geometry, optimized so that the logs recorded while running
     /// them identify its parameters best.
     Excite(excite::ExciteArgs),
+    /// Calibrate your arm's URDF to bags of it running the designed excitations, with spreads measured on its
+    /// family: identify the bag, make (or reuse from the cache) the robot's variants on the same motion, identify
+    /// each at the bag's noise, and give every parameter the standard deviation that holds there.
+    Calibrate(calibrate::CalibrateArgs),
     /// Generate a small dataset, train, evaluate and print the tables: the whole system in one command.
     Pipeline(pipeline::PipelineArgs),
     /// Run the paper's dataset and architecture grids at a chosen scale and write both tables.
@@ -112,6 +117,7 @@ fn main() -> std::process::ExitCode {
         Command::Estimate(args) => estimate::run(args),
         Command::Identify(args) => identify::run(args),
         Command::Excite(args) => excite::run(args),
+        Command::Calibrate(args) => calibrate::run(args),
         Command::Pipeline(args) => pipeline::run(args),
         Command::Sweep(args) => sweep::run(args),
     };

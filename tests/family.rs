@@ -124,6 +124,12 @@ fn a_family_dataset_is_reproducible_resumable_and_partitionable_and_refuses_othe
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains(&format!("{ex}/excitation-0.json moves joints")), "{err}");
     assert!(!other.exists(), "a refused family creates no directory");
+    // The fingers moving, on an engine that has no prismatic joints: refused up front, naming the joint.
+    args.extend(["--engine", "rapier"]);
+    let o = dynforge(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("joint 'panda_finger_joint1' is prismatic"), "{err}");
+    assert!(!other.exists(), "a refused family creates no directory");
 }
 
 #[test]
@@ -136,7 +142,11 @@ fn a_family_shard_is_a_physical_variant_of_the_urdf_labelled_with_its_parameters
     run(&family_args(&urdf, excite.to_str().unwrap(), &out, &["--workers", "2"]));
     // The estimators learn the generator's 38 labels: a family is refused up front, naming what serves it.
     let o = dynforge(&["train", out.to_str().unwrap(), "--out", tmp.path().join("run").to_str().unwrap()]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("identify --spread 0.3"));
+    assert!(
+        !o.status.success()
+            && String::from_utf8_lossy(&o.stderr).contains("identify --spread 0.3")
+            && String::from_utf8_lossy(&o.stderr).contains("dynforge calibrate")
+    );
     assert!(!tmp.path().join("run").exists(), "a refused train writes nothing");
     let o = dynforge(&["info", first_shard(&out).to_str().unwrap()]);
     let said = String::from_utf8_lossy(&o.stdout);

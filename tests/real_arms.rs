@@ -218,6 +218,35 @@ fn a_joint_the_logs_hold_still_is_named_with_the_way_out() {
     assert!(!none.exists());
 }
 
+/// Logs of one Panda whose fingers are held a little apart from log to log (as a gripper is) are one robot: the
+/// fingers are welded where the first log holds them, and a second log that holds them elsewhere says so.
+#[test]
+fn logs_whose_welded_fingers_sit_apart_are_one_robot() {
+    let Some(py) = dynforge_testkit::reference_python() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let f = Harness::new(py, tmp.path(), &PANDA);
+    let bag =
+        |seed: u64, finger: f64| {
+            let out = tmp.path().join(format!("held-{seed}.mcap"));
+            f.run(&[], &json!({
+            "urdf": f.urdf, "friction": PANDA.friction_json(), "seed": seed, "duration": 4.0, "rate": 1000.0,
+            "effort": "held", "hold": {"panda_finger_joint1": finger, "panda_finger_joint2": finger}, "out": out,
+        }));
+            out.display().to_string()
+        };
+    let (a, b, c) = (bag(1, 0.02), bag(2, 0.0201), bag(3, 0.03));
+    let out = tmp.path().join("out.urdf");
+    let o = dynforge(&["identify", &a, &b, "--fix", "panda_finger_joint1", "--out", out.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!said.contains("as in the first log"), "{said}");
+    let o = dynforge(&["identify", &a, &c, "--fix", "panda_finger_joint1", "--out", out.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let note = said.lines().find(|l| l.contains("held-3") && l.contains("'panda_finger_joint1' welded at"));
+    assert!(note.is_some_and(|n| n.contains("as in the first log, though its mean here is 0.0")), "{said}");
+}
+
 /// `estimate` reads robots of the family its model was trained on: a UR5's or a Panda's log is refused, naming the
 /// command that serves them, and nothing is written.
 #[test]

@@ -15,7 +15,8 @@
 use std::collections::BTreeMap;
 
 use anyhow::{Context, Result, bail};
-use dynforge_identify::calibrate::{Decided, Estimated, Identification, Options, identify_logs};
+use dynforge_identify::calibrate::family::variant_shards;
+use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
 use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_identify::signals::{Conditioning, EffortConvention};
 use dynforge_recording::log::read_log;
@@ -25,27 +26,14 @@ use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// Every parameter of an identification with its kind: (kind, estimate).
-fn parameters(id: &Identification) -> Vec<(&'static str, Estimated)> {
-    let mut out = Vec::new();
-    for l in &id.links {
-        out.push(("mass", l.mass));
-        out.extend(l.com.iter().map(|e| ("com", *e)));
-        out.extend(l.inertia.iter().map(|e| ("inertia", *e)));
-    }
-    for j in &id.joints {
-        out.extend([("friction", j.coulomb), ("friction", j.viscous)]);
-    }
-    out
-}
-
 /// |z| per (kind, what decided it).
 type Zs = BTreeMap<(&'static str, &'static str), Vec<f64>>;
 
 fn add(zs: &mut Zs, id: &Identification, truth: &Identification) {
-    for ((kind, e), (_, t)) in parameters(id).into_iter().zip(parameters(truth)) {
+    for (p, t) in id.parameters().into_iter().zip(truth.parameters()) {
+        let (kind, e) = (p.kind.name(), p.estimate);
         let decided = if e.decided == Decided::Torques { "torques" } else { "prior" };
-        let z = e.z(t.value).abs();
+        let z = e.z(t.estimate.value).abs();
         for key in [(kind, decided), (kind, "all"), ("all", decided), ("all", "all")] {
             zs.entry(key).or_default().push(z);
         }
@@ -118,21 +106,11 @@ fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Resu
         conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
         fixed: fixed.to_vec(),
     };
-    let mut shards: Vec<_> =
-        std::fs::read_dir(dir.join("shards"))?.map(|e| e.map(|e| e.path())).collect::<Result<_, _>>()?;
-    shards.sort();
+    let shards = variant_shards(dir)?;
     for (case, first_only) in [("first log", true), ("all logs", false)] {
         let (mut zs, mut failed, mut used) = (Zs::new(), 0, 0);
-        for r in 0..robots.min(manifest.robots) {
-            let prefix = format!("r{r:06}-");
-            let mut mine: Vec<_> = shards
-                .iter()
-                .filter(|p| p.file_name().is_some_and(|n| n.to_string_lossy().starts_with(&prefix)))
-                .cloned()
-                .collect();
-            if mine.is_empty() {
-                continue;
-            }
+        for (r, mine) in shards.iter().take(robots as usize) {
+            let mut mine = mine.clone();
             if first_only {
                 mine.truncate(1);
             }

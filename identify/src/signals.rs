@@ -29,7 +29,7 @@ pub enum VelocitySource {
 }
 
 /// What a logged effort is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum EffortConvention {
     /// The torque applied from its stamp to the next (zero-order hold).
@@ -305,10 +305,16 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
 }
 
 /// The scatter of each joint's raw effort from sample to sample over `segments`, as a fraction of its spread: a
-/// robust noise level that needs no model (the median absolute second difference over `0.6745 sqrt(6)`, which is
-/// white noise's standard deviation; a smooth torque's second difference is `O(dt^2)` of its spread). What a fit's
-/// residual is judged against: a residual far above it is dynamics the model cannot take, not noise.
+/// robust noise level that needs no model (see [`effort_noise`]). What a fit's residual is judged against: a residual
+/// far above it is dynamics the model cannot take, not noise.
 pub fn effort_scatter(segments: &[&JointTrajectory]) -> Vec<f64> {
+    effort_noise(segments).into_iter().map(|(sigma, spread)| sigma / spread.max(f64::MIN_POSITIVE)).collect()
+}
+
+/// Each joint's white effort noise [N m or N] and its effort's standard deviation over `segments`: the noise is the
+/// median absolute second difference over `0.6745 sqrt(6)`, which is white noise's standard deviation (a smooth
+/// torque's second difference is `O(dt^2)` of its spread).
+pub fn effort_noise(segments: &[&JointTrajectory]) -> Vec<(f64, f64)> {
     let n = segments.first().map_or(0, |s| s.joints());
     (0..n)
         .map(|j| {
@@ -325,12 +331,12 @@ pub fn effort_scatter(segments: &[&JointTrajectory]) -> Vec<f64> {
                 }
             }
             if d2.is_empty() {
-                return 0.0;
+                return (0.0, 0.0);
             }
             d2.sort_by(f64::total_cmp);
             let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
             let c = count as f64;
-            sigma / (sum2 / c - (sum / c).powi(2)).max(f64::MIN_POSITIVE).sqrt()
+            (sigma, (sum2 / c - (sum / c).powi(2)).max(0.0).sqrt())
         })
         .collect()
 }

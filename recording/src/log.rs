@@ -74,6 +74,18 @@ pub fn log_of(
     document: Option<(&str, &str)>,
     fixed: &[String],
 ) -> Result<Log, ReadError> {
+    log_welded(files, bag, document, fixed, None)
+}
+
+/// [`log_of`] with the welded joints at the positions `at` holds (another log's of the same robot), where it holds
+/// them, instead of at their mean in this log.
+fn log_welded(
+    files: Vec<PathBuf>,
+    bag: Bag,
+    document: Option<(&str, &str)>,
+    fixed: &[String],
+    at: Option<&Welds>,
+) -> Result<Log, ReadError> {
     let file = files[0].display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let (document, source) = match (document, &bag.robot_description) {
@@ -107,9 +119,21 @@ pub fn log_of(
                 notes.push(format!("joint '{name}' is not in the log: welded at 0"));
             }
         } else if is_mimic || fixed.contains(name) {
-            let at = mean_position(&bag, name).unwrap_or(0.0);
-            welds.insert(name.clone(), at);
-            notes.push(format!("joint '{name}' welded at {at:.6} (its mean in the log)"));
+            let mean = mean_position(&bag, name).unwrap_or(0.0);
+            match at.and_then(|w| w.get(name)) {
+                Some(&first) => {
+                    welds.insert(name.clone(), first);
+                    if (first - mean).abs() > WELD_TOLERANCE {
+                        notes.push(format!(
+                            "joint '{name}' welded at {first:.6} as in the first log, though its mean here is {mean:.6}"
+                        ));
+                    }
+                }
+                None => {
+                    welds.insert(name.clone(), mean);
+                    notes.push(format!("joint '{name}' welded at {mean:.6} (its mean in the log)"));
+                }
+            }
         }
     }
     let model = urdf::parse_welded(&document, &source, &welds).map_err(|e| content(e.to_string()))?;
@@ -124,6 +148,9 @@ pub fn log_of(
     }
     Ok(Log { files, document, source, model, welds, velocity_logged, dt, segments, notes })
 }
+
+/// How far (rad or m) a joint welded at the first log's position may sit from it in another log without a note.
+const WELD_TOLERANCE: f64 = 1e-3;
 
 /// The mean position of joint `name` over the messages that have it.
 fn mean_position(bag: &Bag, name: &str) -> Option<f64> {
@@ -204,7 +231,10 @@ pub fn position_ranges(log: &Log) -> Vec<(f64, f64)> {
 pub fn read_logs(paths: &[PathBuf], document: Option<(&str, &str)>, fixed: &[String]) -> Result<Vec<Log>, ReadError> {
     let mut logs: Vec<Log> = Vec::with_capacity(paths.len());
     for path in paths {
-        let log = read_log(path, document, fixed)?;
+        let (files, bag) = read_bag(path)?;
+        // One robot: a joint welded in every log is welded where the first log holds it (a gripper's finger is
+        // held a few micrometres apart from log to log).
+        let log = log_welded(files, bag, document, fixed, logs.first().map(|l| &l.welds))?;
         if let Some(first) = logs.first()
             && (first.model != log.model || first.welds.keys().ne(log.welds.keys()))
         {

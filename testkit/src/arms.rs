@@ -87,6 +87,15 @@ impl Harness {
         out
     }
 
+    /// A noisy log ([`LogKind::Noisy`], sampled effort, 1 kHz) of `arm` running the designed excitation
+    /// `excitation` (an `excitation-K.json` of `dynforge excite`), its noise drawn from `seed`, written to `out`.
+    pub fn excitation_log(&self, arm: &Arm, excitation: &Path, seed: u64, out: &Path) {
+        self.run(&[], &json!({
+            "urdf": self.urdf, "friction": arm.friction_json(), "seed": seed, "rate": 1000.0, "excitation": excitation,
+            "effort": "sampled", "noise": 0.01, "counts": 131072, "velocity": "encoder", "out": out,
+        }));
+    }
+
     /// A log of `seconds` of reference motion `seed`, its effort `held` or `sampled`, at `rate` Hz; its path.
     pub fn log(&self, arm: &Arm, seed: u64, seconds: f64, effort: &str, kind: LogKind, rate: f64) -> PathBuf {
         let out = self.dir.join(format!("{}-{seed}-{effort}-{kind:?}-{rate}-{seconds}.mcap", arm.name));

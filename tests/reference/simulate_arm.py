@@ -8,7 +8,9 @@ stdin (JSON):
   urdf            path of the URDF simulated (its text is also the bag's /robot_description unless "description")
   description     optional: the text written as /robot_description instead
   friction        {joint: [coulomb, viscous]} for the joints that move (the others are held still)
-  seed            of the reference motion (multi-sines)
+  seed            of the reference motion (multi-sines), and of the noise
+  excitation      optional: an `excitation-K.json` of `dynforge excite` (a Fourier series per joint) as the reference
+                  of the joints it names instead of multi-sines; the duration is its period
   duration        seconds of motion (1 s ramps in and out included)
   rate            log rate [Hz], 100 to 1000
   effort          "held": the logged effort is the torque applied until the next sample (zero-order hold, control at
@@ -87,8 +89,24 @@ def reference(rng, lo, hi, vmax, duration):
     return at
 
 
+def fourier(series, j):
+    """Joint j of an excitation's Fourier series (proto/src/fourier.rs): a function of t giving (q, qd, qdd)."""
+    w = 2 * np.pi / series["period"]
+    a, b, q0 = np.array(series["a"][j]), np.array(series["b"][j]), series["start"][j]
+    wl = w * np.arange(1, len(a) + 1)
+
+    def at(t):
+        s, c = np.sin(wl * t), np.cos(wl * t)
+        return q0 + ((a * s + b * (1 - c)) / wl).sum(), (a * c + b * s).sum(), (wl * (b * c - a * s)).sum()
+
+    return at
+
+
 def simulate(req):
     urdf_text = open(req["urdf"]).read()
+    excitation = json.load(open(req["excitation"])) if "excitation" in req else None
+    if excitation:
+        req["duration"] = excitation["series"]["period"]
     m = mujoco_model(urdf_text)
     d = mujoco.MjData(m)
     rate, duration, effort = req["rate"], req["duration"], req["effort"]
@@ -112,7 +130,9 @@ def simulate(req):
         m.dof_solref[dof] = [2 * sim_dt, 1.0]
         m.dof_solimp[dof] = [0.9999, 0.9999, 0.001, 0.5, 2.0]
         lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (-np.pi, np.pi)
-        if name in friction:
+        if excitation and name in excitation["joints"]:
+            refs[name] = fourier(excitation["series"], excitation["joints"].index(name))
+        elif name in friction:
             vmax = 2.0 if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE else 0.1
             refs[name] = reference(rng, lo, hi, vmax, duration)
         else:

@@ -15,6 +15,7 @@ use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
 use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
+use dynforge_proto::sim::EngineKind;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::spatial::Se3;
@@ -25,7 +26,7 @@ use nalgebra::Vector3;
 
 use crate::collision::Contact;
 use crate::job::{JobError, Outcome, job_metadata, write_shard};
-use crate::simulate::{Arm, Collides, Discard, Recording, Reference, SimConfig, simulate};
+use crate::simulate::{Arm, Collides, Discard, Recording, Reference, SimConfig, simulate, unsupported};
 
 /// Why a family cannot be simulated at all (as opposed to one variant's discard).
 #[derive(Debug, thiserror::Error)]
@@ -36,6 +37,8 @@ pub enum FamilySetupError {
     Model(#[from] ModelError),
     #[error("the URDF's inertials are not physical bodies: {0}")]
     Prior(#[from] dynforge_identify::IdentifyError),
+    #[error("{file}: joint '{joint}' is {why}, which the {engine} engine does not simulate (--engine native does)")]
+    Engine { file: String, joint: String, why: &'static str, engine: &'static str },
     #[error("{file} moves joints {found:?}, the URDF (with its welds) has {expected:?}")]
     Joints { file: String, found: Vec<String>, expected: Vec<String> },
 }
@@ -83,13 +86,20 @@ impl Collides for Unchecked {
 
 /// The family of `urdf` on the excitations in `excitations` (as `dynforge excite --out` wrote them), checked as the
 /// workers will read it: its manifest record and its files.
+/// The family is refused up front if `engine` cannot simulate the URDF (with its welds).
 pub fn prepare(
     urdf: &Path,
     excitations: &Path,
     welds: Welds,
     spread: f64,
+    engine: EngineKind,
 ) -> Result<(Family, Sources), FamilySetupError> {
     let sources = Sources::read(urdf, excitations)?;
+    let model = parse_welded(&sources.urdf, &urdf.display().to_string(), &welds)?;
+    if let Some(Discard::Unsupported { engine, joint, why }) = unsupported(engine, &model) {
+        let joint = model.joints()[joint].name.clone();
+        return Err(FamilySetupError::Engine { file: urdf.display().to_string(), joint, why, engine });
+    }
     let family = sources.family(welds, spread);
     FamilyRunner::of(&sources, &family, urdf, excitations)?;
     Ok((family, sources))

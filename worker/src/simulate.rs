@@ -105,12 +105,24 @@ impl Recording {
 
 /// Builds the configured engine for an arm.
 pub fn engine_for<'m>(kind: EngineKind, model: &'m Model, dt: f64) -> Result<Box<dyn Engine + 'm>, Discard> {
+    if let Some(why) = unsupported(kind, model) {
+        return Err(why);
+    }
     match kind {
         EngineKind::Native => Ok(Box::new(NativeEngine::new(model, dt))),
-        EngineKind::Rapier => match (0..model.dof()).find(|&j| model.is_prismatic(j)) {
-            Some(joint) => Err(Discard::Unsupported { engine: kind.name(), joint, why: "prismatic" }),
-            None => Ok(Box::new(RapierEngine::new(model, dt, RAPIER_SUBSTEPS))),
-        },
+        EngineKind::Rapier => Ok(Box::new(RapierEngine::new(model, dt, RAPIER_SUBSTEPS))),
+    }
+}
+
+/// Why the engine `kind` cannot simulate `model`, if it cannot: the rapier arm is built of revolute joints only.
+pub fn unsupported(kind: EngineKind, model: &Model) -> Option<Discard> {
+    match kind {
+        EngineKind::Native => None,
+        EngineKind::Rapier => (0..model.dof()).find(|&j| model.is_prismatic(j)).map(|joint| Discard::Unsupported {
+            engine: kind.name(),
+            joint,
+            why: "prismatic",
+        }),
     }
 }
 

@@ -11,13 +11,14 @@
 //! A log that cannot support a calibration is an error naming the joint and the reason: a joint that never moves, a
 //! residual far above the noise (the URDF's kinematics or the log's joints are not the robot's), no moving sample.
 
+pub mod family;
 mod readiness;
 mod report;
 mod written;
 
 pub use readiness::{Readiness, TESTED_RATES};
-pub use report::{Decided, Estimated, Identification, JointEstimate, LinkEstimate};
-pub use written::{Calibrated, HeldOut, calibrate_to_urdf};
+pub use report::{Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, Scale};
+pub use written::{Calibrated, HeldOut, calibrate_to_urdf, check_output, write_calibrated};
 
 use std::path::PathBuf;
 
@@ -108,7 +109,14 @@ pub fn identify_logs(
     if paths.is_empty() {
         return Err(CalibrateError::NoLogs);
     }
-    let logs = read_logs(paths, document, &options.fixed)?;
+    identify_read(read_logs(paths, document, &options.fixed)?, options)
+}
+
+/// [`identify_logs`] of logs already read (and perhaps changed: a family's variants degraded as a bag is).
+pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identification, Vec<Log>), CalibrateError> {
+    if logs.is_empty() {
+        return Err(CalibrateError::NoLogs);
+    }
     let still = still_joints(&logs);
     if !still.is_empty() {
         let names: Vec<&String> = still.keys().collect();

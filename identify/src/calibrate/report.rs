@@ -70,6 +70,45 @@ impl Estimated {
     }
 }
 
+/// What a parameter is, for reporting per kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Kind {
+    Mass,
+    Com,
+    Inertia,
+    Friction,
+}
+
+impl Kind {
+    pub const ALL: [Kind; 4] = [Kind::Mass, Kind::Com, Kind::Inertia, Kind::Friction];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Mass => "mass",
+            Kind::Com => "com",
+            Kind::Inertia => "inertia",
+            Kind::Friction => "friction",
+        }
+    }
+}
+
+fn kind_of(field: &str) -> Kind {
+    match field {
+        "mass" => Kind::Mass,
+        f if f.starts_with("com") => Kind::Com,
+        _ => Kind::Inertia,
+    }
+}
+
+/// One reported parameter, named as the family's labels are.
+#[derive(Debug, Clone)]
+pub struct Parameter<'a> {
+    pub name: String,
+    pub kind: Kind,
+    pub estimate: &'a Estimated,
+}
+
 /// A moving link's parameters in its URDF frame: mass [kg], centre of mass [m], inertia about the COM in the
 /// link's axes `[ixx, ixy, ixz, iyy, iyz, izz]` [kg m^2] (the link's own and its welded links', as a loader sums
 /// them).
@@ -258,22 +297,37 @@ impl Identification {
 
     /// Parameters the prior decided (the logs could not tell them), by name.
     pub fn from_prior(&self) -> Vec<String> {
+        self.parameters().into_iter().filter(|p| p.estimate.decided == Decided::Prior).map(|p| p.name).collect()
+    }
+
+    /// Every reported parameter in order (each link's mass, COM, inertia; then each joint's Coulomb and viscous
+    /// friction), named `LINK.mass` .. `JOINT.viscous` as the family's labels are.
+    pub fn parameters(&self) -> Vec<Parameter<'_>> {
         let mut out = Vec::new();
         for l in &self.links {
             let named = [("mass", &l.mass)]
                 .into_iter()
                 .chain(["com_x", "com_y", "com_z"].into_iter().zip(&l.com))
                 .chain(["ixx", "ixy", "ixz", "iyy", "iyz", "izz"].into_iter().zip(&l.inertia));
-            out.extend(named.filter(|(_, e)| e.decided == Decided::Prior).map(|(k, _)| format!("{}.{k}", l.name)));
+            out.extend(named.map(|(k, estimate)| Parameter {
+                name: format!("{}.{k}", l.name),
+                kind: kind_of(k),
+                estimate,
+            }));
         }
         for j in &self.joints {
-            for (k, e) in [("coulomb", &j.coulomb), ("viscous", &j.viscous)] {
-                if e.decided == Decided::Prior {
-                    out.push(format!("{}.{k}", j.name));
-                }
+            for (k, estimate) in [("coulomb", &j.coulomb), ("viscous", &j.viscous)] {
+                out.push(Parameter { name: format!("{}.{k}", j.name), kind: Kind::Friction, estimate });
             }
         }
         out
+    }
+
+    /// The estimates of [`Identification::parameters`], in the same order, to change their spreads.
+    pub fn estimates_mut(&mut self) -> impl Iterator<Item = &mut Estimated> {
+        let links =
+            self.links.iter_mut().flat_map(|l| std::iter::once(&mut l.mass).chain(&mut l.com).chain(&mut l.inertia));
+        links.chain(self.joints.iter_mut().flat_map(|j| [&mut j.coulomb, &mut j.viscous]))
     }
 }
 

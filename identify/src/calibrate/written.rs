@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use dynforge_proto::run_dir::write_atomic;
 use dynforge_recording::check_not_an_input;
+use dynforge_recording::log::Log;
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_robot::urdf;
 
@@ -38,9 +39,32 @@ pub fn calibrate_to_urdf(
     holdout: &[PathBuf],
     out: &Path,
 ) -> Result<Calibrated, CalibrateError> {
+    check_output(logs, document, holdout, out)?;
+    let (id, read) = identify_logs(logs, document, options)?;
+    write_calibrated(id, &read, document, options, holdout, out)
+}
+
+/// An error if `out` is one of the inputs (a log, a held-out log, the URDF).
+pub fn check_output(
+    logs: &[PathBuf],
+    document: Option<(&str, &str)>,
+    holdout: &[PathBuf],
+    out: &Path,
+) -> Result<(), CalibrateError> {
     let inputs: Vec<PathBuf> = logs.iter().chain(holdout).cloned().chain(document.map(|(_, s)| s.into())).collect();
-    check_not_an_input(out, &inputs)?;
-    let (mut id, read) = identify_logs(logs, document, options)?;
+    Ok(check_not_an_input(out, &inputs)?)
+}
+
+/// Writes the calibrated robot of `id` (identified from the logs `read`) into the URDF `out`, reports the values the
+/// file holds, and compares both URDFs on `holdout` if any.
+pub fn write_calibrated(
+    mut id: Identification,
+    read: &[Log],
+    document: Option<(&str, &str)>,
+    options: &Options,
+    holdout: &[PathBuf],
+    out: &Path,
+) -> Result<Calibrated, CalibrateError> {
     let log = &read[0];
     let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
     id.notes.extend(notes);

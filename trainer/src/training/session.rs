@@ -121,8 +121,9 @@ impl Session<'_> {
         {
             return Err(SessionError::Setup(format!(
                 "{} is a robot's family (`generate --urdf`), labelled with its standard parameters; the estimators \
-                 learn the generator's robots and their 38 labels. Calibrate a robot of the family with `dynforge \
-                 identify --spread {}` (its prior is the family's)",
+                 learn the generator's robots and their 38 labels. For a family drawn from the URDF's prior, \
+                 `identify --spread {}` already is the best estimator; `dynforge calibrate` uses the family to \
+                 measure the spreads it reports on that robot",
                 self.data.display(),
                 m.family.map_or(0.0, |f| f.spread)
             )));

@@ -1,0 +1,220 @@
+//! `dynforge calibrate`: the user's one command for their own arm. The bag is identified from the URDF (as
+//! `identify` does), the robot's family is made on the excitations the bag ran (or found in the cache by the hash of
+//! the URDF, the excitations and the settings), every variant is identified as the bag was, at the bag's noise, and
+//! the spreads the bag's identification reports are given the factors the family measured: standard deviations that
+//! hold on this robot, this motion and this noise.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use dynforge_coordinator::run::GenerateConfig;
+use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration, variant_shards};
+use dynforge_identify::calibrate::{
+    Calibrated, Identification, Kind, Options, check_output, identify_logs, identify_read, write_calibrated,
+};
+use dynforge_identify::signals::Conditioning;
+use dynforge_proto::content_hash;
+use dynforge_proto::family::DEFAULT_SPREAD;
+use dynforge_proto::flags::{MAX_ROBOTS, positive, weld, whole};
+use dynforge_proto::manifest::Partition;
+use dynforge_proto::run_dir::write_atomic;
+use dynforge_proto::sim::{EngineKind, SimConfig};
+use dynforge_recording::log::{read_log, read_logs};
+use dynforge_robot::generator::GeneratorConfig;
+use serde_json::json;
+
+use crate::generate::{default_workers, execute, worker_command};
+use crate::identify::{Output, Signals, read_urdf};
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// Logs of the robot running the designed excitations: ROS 2 bags (MCAP files or rosbag2 directories) with
+    /// /joint_states.
+    #[arg(required = true)]
+    logs: Vec<PathBuf>,
+    /// The robot's URDF: the values the calibration starts from and the centre of its family.
+    #[arg(long)]
+    urdf: PathBuf,
+    /// The `dynforge excite --out` directory of the excitations the logs ran.
+    #[arg(long, value_name = "DIR")]
+    excitation: PathBuf,
+    /// How far the URDF's values are trusted, relative: the family's spread and the identification's prior.
+    #[arg(long, default_value_t = DEFAULT_SPREAD, value_parser = positive)]
+    spread: f64,
+    /// Variants of the robot in its family.
+    #[arg(long, default_value_t = 64, value_parser = whole::<u64>(MIN_VARIANTS as u64, MAX_ROBOTS))]
+    robots: u64,
+    /// Worker processes making the family (default: one per CPU core).
+    #[arg(long, value_parser = whole::<usize>(1, 1 << 16))]
+    workers: Option<usize>,
+    /// Where families and what they measured are kept (default: $DYNFORGE_CACHE, else $XDG_CACHE_HOME/dynforge,
+    /// else ~/.cache/dynforge).
+    #[arg(long, value_name = "DIR")]
+    cache: Option<PathBuf>,
+    #[command(flatten)]
+    signals: Signals,
+    /// A joint welded as the excitations were designed (`excite --fix`); the logs' is welded at its mean position.
+    #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
+    fix: Vec<(String, f64)>,
+    #[command(flatten)]
+    output: Output,
+}
+
+pub fn run(args: CalibrateArgs) -> Result<()> {
+    let out = args.output.path(&args.logs);
+    let Some((text, source)) = read_urdf(Some(&args.urdf))? else { bail!("--urdf is required") };
+    let document = Some((text.as_str(), source.as_str()));
+    let fixed: Vec<String> = args.fix.iter().map(|(name, _)| name.clone()).collect();
+    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed: fixed.clone() };
+
+    // The files first, then the bag: what cannot be used is refused before minutes of simulation.
+    check_output(&args.logs, document, &args.output.holdout, &out)?;
+    let (family, sources) = dynforge_worker::family::prepare(
+        &args.urdf,
+        &args.excitation,
+        args.fix.iter().cloned().collect(),
+        args.spread,
+        EngineKind::Native,
+    )?;
+    eprintln!("identifying {} log(s) from {}", args.logs.len(), args.urdf.display());
+    let (id, read) = identify_logs(&args.logs, document, &options)?;
+    let degradation = Degradation::of(&read, id.effort);
+
+    let key = json!({"family": family, "robots": args.robots, "version": env!("CARGO_PKG_VERSION")});
+    let dir = cache_dir(args.cache.as_deref())?.join("families").join(hex(&key));
+    let cfg = GenerateConfig {
+        dir: dir.clone(),
+        seed: 0,
+        robots: args.robots,
+        trajectories: sources.excitations.len() as u32,
+        workers: args.workers.unwrap_or_else(default_workers),
+        partition: Partition::WHOLE,
+        generator: GeneratorConfig::default(),
+        sim: SimConfig::default(),
+        family: Some((family, sources)),
+        job_timeout: std::time::Duration::from_secs(120),
+        max_attempts: 3,
+        worker_command: worker_command()?,
+    };
+    execute(&cfg, &mut std::io::stderr()).with_context(|| format!("making the robot's family in {}", dir.display()))?;
+
+    let variants = Options {
+        spread: args.spread,
+        conditioning: Conditioning {
+            velocity: Some(id.velocity.source),
+            cutoff: id.velocity.cutoff,
+            // The variants' efforts are taken as the bag's were (`Degradation::effort`).
+            effort: Some(id.effort),
+        },
+        fixed,
+    };
+    let spreads = family_spreads(&dir, document, &degradation, &variants)?;
+    let mut calibrated = write_calibrated(id, &read, document, &options, &args.output.holdout, &out)?;
+    spreads.apply(&mut calibrated.id)?;
+    match args.output.json {
+        true => {
+            let mut v = calibrated.json()?;
+            v["family"] = json!({"dir": dir, "degradation": degradation, "spreads": spreads});
+            println!("{}", serde_json::to_string_pretty(&v)?);
+        }
+        false => print!("{}", Report { calibrated: &calibrated, spreads: &spreads, dir: &dir }),
+    }
+    Ok(())
+}
+
+/// The cache directory: `flag`, else $DYNFORGE_CACHE, else $XDG_CACHE_HOME/dynforge, else ~/.cache/dynforge.
+fn cache_dir(flag: Option<&Path>) -> Result<PathBuf> {
+    if let Some(dir) = flag {
+        return Ok(dir.to_path_buf());
+    }
+    let var = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
+    var("DYNFORGE_CACHE")
+        .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("dynforge")))
+        .or_else(|| var("HOME").map(|d| d.join(".cache/dynforge")))
+        .context("no cache directory: give --cache DIR (neither DYNFORGE_CACHE, XDG_CACHE_HOME nor HOME is set)")
+}
+
+fn hex(value: &serde_json::Value) -> String {
+    format!("{:016x}", content_hash(value.to_string().as_bytes()))
+}
+
+/// The spread factors of the family in `dir` at `degradation`, identified with `options` from the URDF
+/// `document`: read from the family's cache when measured before with the same settings, else measured and kept.
+fn family_spreads(
+    dir: &Path,
+    document: Option<(&str, &str)>,
+    degradation: &Degradation,
+    options: &Options,
+) -> Result<SpreadCalibration> {
+    let key = json!({
+        "degradation": degradation,
+        "conditioning": format!("{:?}", options.conditioning),
+        "spread": options.spread,
+        "fixed": options.fixed,
+        "urdf": document.map(|(text, _)| content_hash(text.as_bytes())),
+        "version": env!("CARGO_PKG_VERSION"),
+    });
+    let path = dir.join(format!("spreads-{}.json", hex(&key)));
+    if let Ok(text) = std::fs::read_to_string(&path)
+        && let Ok(spreads) = serde_json::from_str::<SpreadCalibration>(&text)
+    {
+        eprintln!("spreads: measured before at this noise ({})", path.display());
+        return Ok(spreads);
+    }
+    let shards = variant_shards(dir).with_context(|| format!("reading {}", dir.join("shards").display()))?;
+    let bar = dynforge_display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
+    bar.set_length(shards.len() as u64);
+    let (mut pairs, mut refused) = (Vec::new(), 0);
+    for (k, (r, mine)) in shards.iter().enumerate() {
+        bar.set_position(k as u64);
+        let mut logs = read_logs(mine, document, &options.fixed)?;
+        for (k, log) in logs.iter_mut().enumerate() {
+            degradation.apply(log, content_hash(format!("variant {r} log {k}").as_bytes()));
+        }
+        match identify_read(logs, options) {
+            Ok((id, _)) => {
+                let mut truth: Identification = id.clone();
+                truth.report_values_of(&read_log(&mine[0], None, &options.fixed)?.model);
+                pairs.push((id, truth));
+            }
+            Err(e) => {
+                refused += 1;
+                bar.suspend(|| eprintln!("variant {r}: refused by the identification: {e}"));
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let spreads = SpreadCalibration::fit(&pairs, refused)?;
+    write_atomic(&path, serde_json::to_string_pretty(&spreads)?.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(spreads)
+}
+
+/// The calibration with what the family measured.
+struct Report<'a> {
+    calibrated: &'a Calibrated,
+    spreads: &'a SpreadCalibration,
+    dir: &'a Path,
+}
+
+impl std::fmt::Display for Report<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}", self.calibrated)?;
+        let s = self.spreads;
+        writeln!(
+            f,
+            "spreads: measured on {} variants of the robot's family ({} refused), each identified as the log was, at \
+             its noise (a spread the family finds too wide is kept: a simulation cannot show a real robot's departures \
+             from the model)",
+            s.variants, s.refused,
+        )?;
+        for kind in Kind::ALL {
+            let (n, median, widened) = s.of_kind(kind);
+            if n > 0 {
+                writeln!(f, "  {:<9} median factor {median:.2}; {widened} of {n} widened", kind.name())?;
+            }
+        }
+        writeln!(f, "family: {}", self.dir.display())
+    }
+}
