@@ -4,7 +4,7 @@
 
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_robot::{Data, Model, regressor, rnea};
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use crate::normal::{BlockedRows, NormalEquations};
@@ -125,6 +125,45 @@ impl RowSums {
     pub fn equations(&self, convention: EffortConvention) -> NormalEquations {
         self.by_convention[convention as usize].clone()
     }
+}
+
+/// The weighted scores `sum w_j r_ij y_ij` of the parameters `pi` over the rows of `c` in `range` (every `step`-th
+/// sample from the segment's `origin`, as [`RowSums::add`] takes them), one per run of `block` samples, and the rows
+/// summed: each column's overlap with the residual as the residual really is (coloured by the filter and the
+/// controller), what a sandwich covariance is measured from.
+pub(crate) fn scores(
+    model: &Model,
+    c: &Conditioned,
+    range: std::ops::Range<usize>,
+    (step, origin): (usize, usize),
+    convention: EffortConvention,
+    (pi, weights): (&DVector<f64>, &[f64]),
+    block: usize,
+) -> (Vec<DVector<f64>>, usize) {
+    let n = model.dof();
+    let moving = moving_rows(c);
+    let step = step.max(1);
+    let first = range.start + (step - (origin + range.start) % step) % step;
+    let (mut out, mut g, mut current, mut rows) = (Vec::new(), DVector::zeros(pi.len()), None, 0);
+    for_each_row(model, c, first..range.end, step, |i, y| {
+        let b = i / block.max(1);
+        if current != Some(b) {
+            if current.is_some() {
+                out.push(std::mem::replace(&mut g, DVector::zeros(pi.len())));
+            }
+            current = Some(b);
+        }
+        for j in (0..n).filter(|&j| moving[i * n + j]) {
+            let yj = y.row(j);
+            let r = c.tau[convention as usize][i * n + j] - (yj * pi)[0];
+            g += yj.transpose() * (weights[j] * r);
+            rows += 1;
+        }
+    });
+    if current.is_some() {
+        out.push(g);
+    }
+    (out, rows)
 }
 
 /// Each joint's torque residuals of the robot `calibrated` (its inertials by inverse dynamics, its friction on the

@@ -166,3 +166,65 @@ fn the_generated_arms_have_48_identifiable_combinations() {
         assert_eq!(least_squares(&ne).unwrap().rank, 48, "robot {id}");
     }
 }
+
+/// What `identify` reports as a friction's standard deviation is the scatter of its value over draws of the effort
+/// noise: 16 draws of 1 % white noise on two 4 s logs of a generated arm, velocity as logged. Each of the 12
+/// friction parameters' scatter is a sample standard deviation of 16 values (relative standard error
+/// `1 / sqrt(30)`, 18 %); pooled over the 12 as a mean squared ratio, ~5 %, so 0.7-1.4 is ~6 standard errors wide and
+/// a covariance off by any factor that matters (a wrong scale of the scores, of the rows) falls outside (measured:
+/// 0.99). White noise is where the sandwich and the Laplace covariance agree; where they part (a residual coloured
+/// by the velocity filter, MuJoCo's logs) is measured by `dynforge-bench-calibrate` (docs/measurements.md).
+#[test]
+fn friction_spreads_are_the_scatter_of_friction_over_noise_draws() {
+    use dynforge_identify::calibrate::{Options, identify_logs};
+    use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
+    use dynforge_robot::rng::Rng;
+    let truth = robot(8);
+    let n = truth.dof();
+    let urdf = dynforge_robot::urdf::to_string(&truth, &Default::default());
+    let dir = tempfile::tempdir().unwrap();
+    let clean: Vec<JointTrajectory> = (0..2).map(|v| sinusoid_recording(&truth, v, DT, 4000)).collect();
+    let rms: Vec<f64> = (0..n)
+        .map(|j| (clean[0].tau.iter().skip(j).step_by(n).map(|t| t * t).sum::<f64>() / clean[0].len() as f64).sqrt())
+        .collect();
+    let options = Options {
+        conditioning: Conditioning {
+            effort: Some(EffortConvention::Held),
+            velocity: Some(VelocitySource::Logged),
+            cutoff: None,
+        },
+        ..Options::default()
+    };
+    let (mut values, mut stds) = (vec![Vec::new(); 2 * n], vec![Vec::new(); 2 * n]);
+    for draw in 0..16u64 {
+        let logs: Vec<_> = clean
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                let mut noisy = c.clone();
+                let mut rng = Rng::stream(draw, &[k as u64]);
+                noisy.tau.iter_mut().enumerate().for_each(|(i, t)| *t += 0.01 * rms[i % n] * rng.normal());
+                let path = dir.path().join(format!("log{k}.mcap"));
+                dynforge_testkit::write_bag(&path, &urdf, &noisy);
+                path
+            })
+            .collect();
+        let (id, _) = identify_logs(&logs, None, &options).unwrap();
+        for (j, joint) in id.joints.iter().enumerate() {
+            for (k, e) in [(2 * j, &joint.coulomb), (2 * j + 1, &joint.viscous)] {
+                values[k].push(e.value);
+                stds[k].push(e.std);
+            }
+        }
+    }
+    let ratio = (0..2 * n)
+        .map(|k| {
+            let m = values[k].iter().sum::<f64>() / 16.0;
+            let scatter = values[k].iter().map(|v| (v - m).powi(2)).sum::<f64>() / 15.0;
+            let reported = stds[k].iter().map(|s| s * s).sum::<f64>() / 16.0;
+            reported / scatter
+        })
+        .sum::<f64>()
+        / (2 * n) as f64;
+    assert!((0.7..1.4).contains(&ratio), "reported variance over scatter: {ratio}");
+}

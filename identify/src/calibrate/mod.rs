@@ -29,7 +29,7 @@ use dynforge_robot::Model;
 use dynforge_robot::model::{Friction, Inertial};
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_robot::spatial::Inertia;
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use crate::consistent::{self, CoordinatePrior};
@@ -358,6 +358,11 @@ fn fit(
         weights = (0..n).map(|j| weight(j, measured[j].std.powi(2), measured[j].time_of_rows)).collect();
         solution = consistent::solve(ne, &weights, &prior, &solution.x)?;
     }
+    // The sandwich sees the residual as it is; a joint whose residual is under the noise floor is taken at the floor,
+    // as its weight is (its scores scaled up): an exact simulation's residual is a model's error, not noise.
+    let at_floor: Vec<f64> =
+        (0..n).map(|j| weights[j] * (floor(j) / measured[j].std.max(f64::MIN_POSITIVE)).max(1.0)).collect();
+    solution.covariance = sandwich(&solution, ne, &at_floor, &prior, (model, logs), (velocity, convention), &measured)?;
     let pi = consistent::parameters(n, &solution.x);
     let calibrated = model_with(model, &pi)?;
     let noise = measured.iter().map(|m| m.std).collect();
@@ -375,6 +380,52 @@ fn fit(
         logs,
         noise_gain: noise_gain(velocity.source, velocity.cutoff, convention, logs[0].dt),
     }))
+}
+
+/// Blocks of the sandwich's scores, in correlation times of the slowest joint's residual: long enough that blocks
+/// are nearly independent (Newey and West's bandwidth), short enough that minutes of log give hundreds of them.
+const SANDWICH_BLOCK: f64 = 10.0;
+
+/// The sandwich covariance of the MAP `solution`: `H^-1 (J^T M J + P) H^-1`, `M` the sum of the outer products of
+/// the scores (each joint's rows weighted by `scored`) of blocks of [`SANDWICH_BLOCK`] correlation times, measured
+/// on the noise's stretches of the logs and scaled to all rows. The Laplace covariance `H^-1` alone takes every column to see the residual's whole
+/// variance times its correlation time; a slow column (friction's) sees far less of a residual coloured near the
+/// filter's cut-off, a fast one (an inertia's) all of it.
+fn sandwich(
+    solution: &consistent::Solution,
+    ne: &NormalEquations,
+    scored: &[f64],
+    prior: &CoordinatePrior,
+    (model, logs): (&Model, &[Log]),
+    (velocity, convention): (&VelocityChoice, EffortConvention),
+    measured: &[Correlation],
+) -> Result<DMatrix<f64>, IdentifyError> {
+    let n = model.dof();
+    let pi = DVector::from_vec(consistent::parameters(n, &solution.x));
+    let slowest = measured.iter().map(|m| m.time).fold(1.0f64, f64::max);
+    let stretches = noise_blocks(logs);
+    let block = ((SANDWICH_BLOCK * slowest).ceil() as usize).max(100);
+    let pad = settling(velocity.source, velocity.cutoff, logs[0].dt);
+    let parts = dynforge_proto::parallel::map_in_order(&stretches, |(seg, range)| {
+        let (c, rows, lo) = condition_piece(seg, range, velocity.source, velocity.cutoff, pad);
+        crate::rows::scores(model, &c, rows, (velocity.step, lo), convention, (&pi, scored), block)
+    });
+    let p = pi.len();
+    let (mut meat, mut used) = (DMatrix::zeros(p, p), 0usize);
+    for (blocks, rows) in &parts {
+        used += rows;
+        for g in blocks {
+            meat += g * g.transpose();
+        }
+    }
+    if used == 0 {
+        return Ok(solution.covariance.clone());
+    }
+    meat *= ne.rows() as f64 / used as f64;
+    let jac = consistent::jacobian(n, &solution.x);
+    let precision = DMatrix::from_diagonal(&prior.std.map(|s| 1.0 / (s * s)));
+    let c = &solution.covariance;
+    Ok(c * (jac.transpose() * meat * &jac + precision) * c)
 }
 
 /// Residual sum of squares of `pi` on joint `j` of `ne`.
