@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_coordinator::run::GenerateConfig;
 use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration, variant_shards};
@@ -18,14 +18,14 @@ use dynforge_proto::content_hash;
 use dynforge_proto::family::DEFAULT_SPREAD;
 use dynforge_proto::flags::{MAX_ROBOTS, positive, weld, whole};
 use dynforge_proto::manifest::Partition;
-use dynforge_proto::run_dir::write_atomic;
+use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_recording::log::{read_log, read_logs};
 use dynforge_robot::generator::GeneratorConfig;
 use serde_json::json;
 
 use crate::generate::{default_workers, execute, worker_command};
-use crate::identify::{Output, Signals, read_urdf};
+use crate::identify::{Output, Signals, read_urdf_file};
 
 #[derive(Args)]
 pub struct CalibrateArgs {
@@ -63,7 +63,7 @@ pub struct CalibrateArgs {
 
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let out = args.output.path(&args.logs);
-    let Some((text, source)) = read_urdf(Some(&args.urdf))? else { bail!("--urdf is required") };
+    let (text, source) = read_urdf_file(&args.urdf)?;
     let document = Some((text.as_str(), source.as_str()));
     let fixed: Vec<String> = args.fix.iter().map(|(name, _)| name.clone()).collect();
     let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed: fixed.clone() };
@@ -162,7 +162,7 @@ fn family_spreads(
         eprintln!("spreads: measured before at this noise ({})", path.display());
         return Ok(spreads);
     }
-    let shards = variant_shards(dir).with_context(|| format!("reading {}", dir.join("shards").display()))?;
+    let shards = variant_shards(dir).with_context(|| format!("reading {}", dir.join(SHARDS).display()))?;
     let bar = dynforge_display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
     bar.set_length(shards.len() as u64);
     let (mut pairs, mut refused) = (Vec::new(), 0);

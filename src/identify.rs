@@ -115,9 +115,11 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
 
 /// The URDF at `path` (its text and its name in messages), if given.
 pub fn read_urdf(path: Option<&std::path::Path>) -> Result<Option<(String, String)>> {
-    path.map(|p| {
-        let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-        Ok((text, p.display().to_string()))
-    })
-    .transpose()
+    path.map(read_urdf_file).transpose()
+}
+
+/// The URDF at `path`: its text and its name in messages.
+pub fn read_urdf_file(path: &std::path::Path) -> Result<(String, String)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok((text, path.display().to_string()))
 }

@@ -36,15 +36,7 @@ fn json_of(o: &std::process::Output) -> Value {
 /// Every (value, std) of a `--json` identification, in order.
 fn estimates(v: &Value) -> Vec<(f64, f64)> {
     let e = |x: &Value| (x["value"].as_f64().unwrap(), x["std"].as_f64().unwrap());
-    let mut out = Vec::new();
-    for l in v["links"].as_array().unwrap() {
-        out.push(e(&l["mass"]));
-        out.extend(l["com"].as_array().unwrap().iter().chain(l["inertia"].as_array().unwrap()).map(e));
-    }
-    for j in v["joints"].as_array().unwrap() {
-        out.extend([e(&j["coulomb"]), e(&j["viscous"])]);
-    }
-    out
+    dynforge_testkit::json_parameters(v).expect("links and joints").into_iter().map(e).collect()
 }
 
 #[test]

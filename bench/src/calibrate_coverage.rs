@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, Result, bail};
+use dynforge_identify::calibrate::Kind;
 use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
@@ -50,16 +51,6 @@ struct Row {
     unscaled: (f64, f64, bool),
 }
 
-fn kind(name: &str) -> &'static str {
-    let field = name.rsplit('.').next().unwrap_or_default();
-    match field {
-        "mass" => "mass",
-        "coulomb" | "viscous" => "friction",
-        f if f.starts_with("com") => "com",
-        _ => "inertia",
-    }
-}
-
 /// One parameter of a `--json` identification: value, standard deviation (of the logarithm when `log`), whether the
 /// prior decided it, and the URDF's value.
 struct Reported {
@@ -82,18 +73,7 @@ fn estimates(v: &Value) -> Result<Vec<Reported>> {
             urdf: f("urdf")?,
         })
     };
-    let mut out = Vec::new();
-    for l in v["links"].as_array().context("links")? {
-        out.push(e(&l["mass"])?);
-        for x in l["com"].as_array().context("com")?.iter().chain(l["inertia"].as_array().context("inertia")?) {
-            out.push(e(x)?);
-        }
-    }
-    for j in v["joints"].as_array().context("joints")? {
-        out.push(e(&j["coulomb"])?);
-        out.push(e(&j["viscous"])?);
-    }
-    Ok(out)
+    dynforge_testkit::json_parameters(v).context("links and joints")?.into_iter().map(e).collect()
 }
 
 fn z((value, std, log): (f64, f64, bool), truth: f64) -> f64 {
@@ -213,7 +193,7 @@ fn arm_case(py: &str, s: &Settings, arm: &Arm, table: &mut Vec<String>) -> Resul
             let (c, d) = (&c[k], &d[k]);
             rows.push(Row {
                 unscaled: (c.value, c.std / applied, c.log),
-                kind: kind(name),
+                kind: Kind::of(name).name(),
                 prior: c.prior,
                 truth: truth[k],
                 nominal: c.urdf,

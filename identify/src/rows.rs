@@ -80,6 +80,14 @@ pub(crate) fn moving_rows(c: &Conditioned) -> Vec<bool> {
     out
 }
 
+/// The samples of `range` whose index in the segment (`origin` + index in the piece) is a multiple of `step`, as
+/// the range to start from and the step (at least 1): fixed in the segment, so how a segment is cut into pieces
+/// changes no row.
+fn thinned(range: std::ops::Range<usize>, step: usize, origin: usize) -> (std::ops::Range<usize>, usize) {
+    let step = step.max(1);
+    (range.start + (step - (origin + range.start) % step) % step..range.end, step)
+}
+
 impl RowSums {
     pub fn new(dof: usize) -> Self {
         RowSums { by_convention: [NormalEquations::new(dof), NormalEquations::new(dof)] }
@@ -101,9 +109,8 @@ impl RowSums {
         }
         let moving = moving_rows(c);
         let mut rows = BlockedRows::new(n, 2);
-        let step = step.max(1);
-        let first = range.start + (step - (origin + range.start) % step) % step;
-        for_each_row(model, c, first..range.end, step, |i, y| {
+        let (rows_range, step) = thinned(range, step, origin);
+        for_each_row(model, c, rows_range, step, |i, y| {
             for j in (0..n).filter(|&j| moving[i * n + j]) {
                 rows.push(j, y, &[c.tau[0][i * n + j], c.tau[1][i * n + j]]);
             }
@@ -142,10 +149,9 @@ pub(crate) fn scores(
 ) -> (Vec<DVector<f64>>, usize) {
     let n = model.dof();
     let moving = moving_rows(c);
-    let step = step.max(1);
-    let first = range.start + (step - (origin + range.start) % step) % step;
+    let (rows_range, step) = thinned(range, step, origin);
     let (mut out, mut g, mut current, mut rows) = (Vec::new(), DVector::zeros(pi.len()), None, 0);
-    for_each_row(model, c, first..range.end, step, |i, y| {
+    for_each_row(model, c, rows_range, step, |i, y| {
         let b = i / block.max(1);
         if current != Some(b) {
             if current.is_some() {

@@ -105,3 +105,18 @@ pub fn write_bag(path: &Path, urdf: &str, traj: &dynforge_recording::JointTrajec
     let content = dynforge_shard::ShardContent { urdf, joint_states: &joint_states, metadata: &Default::default() };
     dynforge_shard::write(path, &content).expect("the bag is written");
 }
+
+/// Every parameter's JSON object of an `identify --json` or `calibrate --json` output, in the order
+/// `Identification::parameters` gives them (each link's mass, COM, inertia; then each joint's Coulomb and viscous
+/// friction); `None` when the output lacks links or joints.
+pub fn json_parameters(v: &serde_json::Value) -> Option<Vec<&serde_json::Value>> {
+    let mut out = Vec::new();
+    for l in v["links"].as_array()? {
+        out.push(&l["mass"]);
+        out.extend(l["com"].as_array()?.iter().chain(l["inertia"].as_array()?));
+    }
+    for j in v["joints"].as_array()? {
+        out.extend([&j["coulomb"], &j["viscous"]]);
+    }
+    Some(out)
+}

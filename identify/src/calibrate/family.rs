@@ -12,6 +12,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use dynforge_proto::run_dir::SHARDS;
 use dynforge_proto::shard::robot_of_file_name;
 use dynforge_recording::JointTrajectory;
 use dynforge_recording::log::Log;
@@ -38,7 +39,7 @@ const ON_GRID: f64 = 0.99;
 
 impl Degradation {
     /// The degradation the logs show: each joint's white effort noise (its median second difference) and its
-    /// encoder step (the smallest position change, when every position is a multiple of it).
+    /// encoder step (the smallest position change, when [`ON_GRID`] of the positions are multiples of it).
     pub fn of(logs: &[Log], effort: EffortConvention) -> Self {
         Self::of_segments(&logs.iter().flat_map(|l| &l.segments).collect::<Vec<_>>(), effort)
     }
@@ -97,7 +98,7 @@ const GRID_TOLERANCE: f64 = 1e-6;
 /// The shards of a family's run directory `dir`, by variant (robot), each variant's in trajectory order.
 pub fn variant_shards(dir: &Path) -> std::io::Result<BTreeMap<u64, Vec<PathBuf>>> {
     let mut out: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
-    for entry in std::fs::read_dir(dir.join("shards"))? {
+    for entry in std::fs::read_dir(dir.join(SHARDS))? {
         let path = entry?.path();
         if let Some(r) = path.file_name().and_then(|n| robot_of_file_name(&n.to_string_lossy())) {
             out.entry(r).or_default().push(path);

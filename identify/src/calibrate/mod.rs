@@ -388,9 +388,9 @@ const SANDWICH_BLOCK: f64 = 10.0;
 
 /// The sandwich covariance of the MAP `solution`: `H^-1 (J^T M J + P) H^-1`, `M` the sum of the outer products of
 /// the scores (each joint's rows weighted by `scored`) of blocks of [`SANDWICH_BLOCK`] correlation times, measured
-/// on the noise's stretches of the logs and scaled to all rows. The Laplace covariance `H^-1` alone takes every column to see the residual's whole
-/// variance times its correlation time; a slow column (friction's) sees far less of a residual coloured near the
-/// filter's cut-off, a fast one (an inertia's) all of it.
+/// on the noise's stretches of the logs and scaled to all rows. The Laplace covariance `H^-1` alone takes every
+/// column to see the residual's whole variance times its correlation time; a slow column (friction's) sees far less
+/// of a residual coloured near the filter's cut-off, a fast one (an inertia's) all of it.
 fn sandwich(
     solution: &consistent::Solution,
     ne: &NormalEquations,

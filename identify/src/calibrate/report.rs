@@ -83,6 +83,16 @@ pub enum Kind {
 impl Kind {
     pub const ALL: [Kind; 4] = [Kind::Mass, Kind::Com, Kind::Inertia, Kind::Friction];
 
+    /// The kind of the parameter named `LINK.field` or `JOINT.field` (as [`Identification::parameters`] names them).
+    pub fn of(name: &str) -> Kind {
+        match name.rsplit('.').next().unwrap_or_default() {
+            "mass" => Kind::Mass,
+            "coulomb" | "viscous" => Kind::Friction,
+            f if f.starts_with("com") => Kind::Com,
+            _ => Kind::Inertia,
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Kind::Mass => "mass",
@@ -90,14 +100,6 @@ impl Kind {
             Kind::Inertia => "inertia",
             Kind::Friction => "friction",
         }
-    }
-}
-
-fn kind_of(field: &str) -> Kind {
-    match field {
-        "mass" => Kind::Mass,
-        f if f.starts_with("com") => Kind::Com,
-        _ => Kind::Inertia,
     }
 }
 
@@ -311,7 +313,7 @@ impl Identification {
                 .chain(["ixx", "ixy", "ixz", "iyy", "iyz", "izz"].into_iter().zip(&l.inertia));
             out.extend(named.map(|(k, estimate)| Parameter {
                 name: format!("{}.{k}", l.name),
-                kind: kind_of(k),
+                kind: Kind::of(k),
                 estimate,
             }));
         }
