@@ -16,9 +16,9 @@ pub struct IdentifyArgs {
     /// The robot's URDF, the starting point and prior (default: the first log's /robot_description).
     #[arg(long)]
     urdf: Option<PathBuf>,
-    /// How far the URDF's values are trusted, relative: masses and inertias within ~this share, centres of mass
-    /// within this share of their offset or of the link's radius of gyration, friction within this share or 2 % of
-    /// the joint's effort limit.
+    /// How far the URDF's values are trusted, relative: each mass and each inertia tensor's scale within ~this
+    /// share (independently; the tensor's shape within half of it), centres of mass within this share of their
+    /// distance from the link's origin (at least 1 cm), friction within this share or 2 % of the joint's effort limit.
     #[arg(long, default_value_t = 0.5, value_parser = positive)]
     spread: f64,
     #[command(flatten)]

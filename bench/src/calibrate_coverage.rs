@@ -12,7 +12,7 @@
 //! from the prior the calibration assumes, spread 0.3 around the truth: where the spreads must hold).
 //!
 //! Usage: DYNFORGE_PYTHON=.venv/bin/python dynforge-bench-calibrate --dynforge target/release/dynforge
-//! [--nominals N] [--nominal perturb|prior] [--robots 64] [--arms ur5,panda] [--work DIR]
+//! [--nominals N] [--nominal perturb|prior] [--robots 64] [--arms ur5,panda] [--work DIR] [--identify-only]
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -36,6 +36,8 @@ struct Settings {
     prior_draws: bool,
     robots: u64,
     work: PathBuf,
+    /// Identify only (its columns repeated as calibrate's): minutes instead of a family per nominal.
+    identify_only: bool,
 }
 
 /// One parameter of one calibration: its kind, whether the prior decided it (in calibrate's judgement), the
@@ -175,21 +177,30 @@ fn arm_case(py: &str, s: &Settings, arm: &Arm, table: &mut Vec<String>) -> Resul
         let cal_dir = s.work.join("cache").display().to_string();
         let robots = s.robots.to_string();
         let excite_s = excite.display().to_string();
-        let calibrated = run(
-            "calibrate",
-            &dir.join(format!("calibrate-{i}.urdf")),
-            &["--excitation", &excite_s, "--cache", &cal_dir, "--robots", &robots],
-        )?;
-        let seconds = started.elapsed().as_secs_f64();
         let identified = run("identify", &dir.join(format!("identify-{i}.urdf")), &[])?;
-        eprintln!("{} nominal {i}: calibrate {seconds:.0} s", arm.name);
+        let calibrated = match s.identify_only {
+            true => identified.clone(),
+            false => run(
+                "calibrate",
+                &dir.join(format!("calibrate-{i}.urdf")),
+                &["--excitation", &excite_s, "--cache", &cal_dir, "--robots", &robots],
+            )?,
+        };
+        let seconds = started.elapsed().as_secs_f64();
+        eprintln!("{} nominal {i}: {seconds:.0} s", arm.name);
         let (c, d) = (estimates(&calibrated)?, estimates(&identified)?);
         if c.len() != truth.len() || d.len() != truth.len() {
             bail!("{} parameters, {} and {} reported", truth.len(), c.len(), d.len());
         }
-        let factors = calibrated["family"]["spreads"]["parameters"].as_array().context("the family's spreads")?;
+        let factors = calibrated["family"]["spreads"]["parameters"].as_array();
+        if factors.is_none() && !s.identify_only {
+            bail!("calibrate's JSON holds no family spreads");
+        }
         for (k, name) in names.iter().enumerate() {
-            let applied = factors[k]["factor"].as_f64().context("a factor")?.max(1.0);
+            let applied = match factors {
+                Some(f) => f[k]["factor"].as_f64().context("a factor")?.max(1.0),
+                None => 1.0,
+            };
             let (c, d) = (&c[k], &d[k]);
             rows.push(Row {
                 unscaled: (c.value, c.std / applied, c.log),
@@ -262,6 +273,7 @@ fn main() -> Result<()> {
         prior_draws: false,
         robots: 64,
         work: std::env::temp_dir().join("dynforge-bench-calibrate"),
+        identify_only: false,
     };
     let mut arms = vec!["ur5".to_string(), "panda".to_string()];
     while let Some(a) = args.next() {
@@ -279,6 +291,7 @@ fn main() -> Result<()> {
             "--robots" => s.robots = value()?.parse()?,
             "--arms" => arms = value()?.split(',').map(String::from).collect(),
             "--work" => s.work = value()?.into(),
+            "--identify-only" => s.identify_only = true,
             _ => bail!("unknown option {a}"),
         }
     }

@@ -19,22 +19,51 @@ use crate::solve::scaled_pseudo_solve;
 use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
-/// viscous friction): mean and standard deviation of each.
+/// viscous friction). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (see
+/// [`independent`]) and in every other coordinate: a URDF's mass, inertia and centre of mass come from different
+/// sources (a scale, a CAD model's geometry, a guess) and are off independently, while the geometry that gives the
+/// tensor's shape is what a URDF gets best.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CoordinatePrior {
     pub mean: DVector<f64>,
-    pub std: DVector<f64>,
+    /// Standard deviations of the independent coordinates (`independent(x - mean)`).
+    std: DVector<f64>,
+    links: usize,
 }
 
 /// Smallest prior spread of friction, as a share of the joint's effort limit (Coulomb) and of its effort limit over
 /// its speed limit (viscous): a URDF that states no friction (most do) is no evidence that there is none.
 pub const FRICTION_FLOOR: f64 = 0.02;
 
+/// How much better than its scale a link's inertia tensor's shape is known: the spread of each principal radius
+/// about the radii's geometric mean, as a share of the spread of the scale.
+pub const SHAPE: f64 = 0.5;
+
+/// Independent coordinates of a link's `[a, d1, d2, d3]`: the log mass (over two), the log scale of the inertia
+/// tensor (over two: `a` plus the mean log radius), and the first two radii's log deviations from their mean. The
+/// coordinates of `x` other than these are their own independent ones.
+pub fn independent(v: [f64; 4]) -> [f64; 4] {
+    let mean = (v[1] + v[2] + v[3]) / 3.0;
+    [v[0], v[0] + mean, v[1] - mean, v[2] - mean]
+}
+
+/// The inverse of [`independent`].
+pub fn from_independent(y: [f64; 4]) -> [f64; 4] {
+    let mean = y[1] - y[0];
+    [y[0], mean + y[2], mean + y[3], mean - y[2] - y[3]]
+}
+
+/// Indices in `x` of link `l`'s `[a, d1, d2, d3]`.
+fn mass_and_radii(l: usize) -> [usize; 4] {
+    [COORDINATES * l + ALPHA, COORDINATES * l + D[0], COORDINATES * l + D[1], COORDINATES * l + D[2]]
+}
+
 impl CoordinatePrior {
-    /// The prior of a robot description: its own values, each believed to within `spread` (relative): masses and
-    /// second moments log-normally (`a` and `d` with `spread / 2`), the off-diagonal shape within `spread / 2` of the
-    /// link's radius of gyration, the centre of mass within `spread` of its distance from the origin or the radius
-    /// of gyration (at least 1 cm), friction within `spread` of its value or [`FRICTION_FLOOR`].
+    /// The prior of a robot description: its own values, each believed to within `spread` (relative): the mass and
+    /// the inertia tensor's scale log-normally (`a` and the log scale with `spread / 2`), the tensor's shape within
+    /// [`SHAPE`] of that, the off-diagonal shape within `spread / 2` of the link's radius of gyration, the centre of
+    /// mass within `spread` of its distance from the link's origin (at least 1 cm) in every direction, friction
+    /// within `spread` of its value or [`FRICTION_FLOOR`].
     pub fn of(model: &Model, spread: f64) -> Result<Self, IdentifyError> {
         let n = model.dof();
         let pi = dynamic_parameters(model);
@@ -44,14 +73,17 @@ impl CoordinatePrior {
             let theta = standard::coordinates(&pi[NI * l..NI * (l + 1)])
                 .ok_or_else(|| IdentifyError::NotPhysical(model.links()[l].name.clone()))?;
             let gyration = D.iter().map(|&k| theta[k].exp()).sum::<f64>() / 3.0;
+            let distance = T.iter().map(|&k| theta[k] * theta[k]).sum::<f64>().sqrt();
             let base = COORDINATES * l;
             for k in 0..COORDINATES {
                 mean[base + k] = theta[k];
                 std[base + k] = match k {
                     ALPHA => spread / 2.0,
-                    _ if D.contains(&k) => spread / 2.0,
+                    // In the independent coordinates: the tensor's scale, then two radii's shape.
+                    1 => spread / 2.0,
+                    2 | 3 => SHAPE * spread / 2.0,
                     _ if S.contains(&k) => spread / 2.0 * gyration,
-                    _ => spread * theta[k].abs().max(gyration).max(0.01),
+                    _ => spread * distance.max(0.01),
                 };
             }
         }
@@ -63,7 +95,62 @@ impl CoordinatePrior {
             std[at] = (spread * joint.friction.coulomb).max(FRICTION_FLOOR * effort);
             std[at + 1] = (spread * joint.friction.viscous).max(FRICTION_FLOOR * effort / speed);
         }
-        Ok(CoordinatePrior { mean, std })
+        Ok(CoordinatePrior { mean, std, links: n })
+    }
+
+    /// `x - mean` in the independent coordinates, each over its standard deviation: a standard normal vector.
+    pub fn whiten(&self, x: &DVector<f64>) -> DVector<f64> {
+        self.on_links(x - &self.mean, independent).component_div(&self.std)
+    }
+
+    /// The coordinates at standard normal `z` (the inverse of [`CoordinatePrior::whiten`]).
+    fn colour(&self, z: &DVector<f64>) -> DVector<f64> {
+        self.on_links(z.component_mul(&self.std), from_independent) + &self.mean
+    }
+
+    /// `v` with `f` applied to every link's mass and radii.
+    fn on_links(&self, mut v: DVector<f64>, f: fn([f64; 4]) -> [f64; 4]) -> DVector<f64> {
+        for l in 0..self.links {
+            let at = mass_and_radii(l);
+            for (k, value) in at.iter().zip(f(at.map(|k| v[k]))) {
+                v[*k] = value;
+            }
+        }
+        v
+    }
+
+    /// The prior's precision matrix over `x` (block diagonal: a link's mass and radii are coupled).
+    pub fn precision(&self) -> DMatrix<f64> {
+        let map = self.linear(independent);
+        map.transpose() * DMatrix::from_diagonal(&self.std.map(|s| 1.0 / (s * s))) * map
+    }
+
+    /// The prior's covariance over `x`.
+    pub fn covariance(&self) -> DMatrix<f64> {
+        let root = self.linear(from_independent) * DMatrix::from_diagonal(&self.std);
+        &root * root.transpose()
+    }
+
+    /// The prior's standard deviation of each coordinate of `x`.
+    pub fn marginal_std(&self) -> DVector<f64> {
+        self.covariance().diagonal().map(f64::sqrt)
+    }
+
+    /// The matrix over `x` of `f` ([`independent`] or its inverse) on every link's mass and radii, the identity
+    /// elsewhere.
+    fn linear(&self, f: fn([f64; 4]) -> [f64; 4]) -> DMatrix<f64> {
+        let mut m = DMatrix::identity(self.mean.len(), self.mean.len());
+        for l in 0..self.links {
+            let at = mass_and_radii(l);
+            for (c, &k) in at.iter().enumerate() {
+                let mut unit = [0.0; 4];
+                unit[c] = 1.0;
+                for (r, v) in f(unit).iter().enumerate() {
+                    m[(at[r], k)] = *v;
+                }
+            }
+        }
+        m
     }
 
     /// A robot drawn from this prior: `model`'s kinematics with each link's inertial at coordinates drawn from
@@ -86,11 +173,11 @@ impl CoordinatePrior {
         friction: bool,
     ) -> Result<Model, IdentifyError> {
         let n = model.dof();
-        let x = DVector::from_fn(self.mean.len(), |k, _| match (k < COORDINATES * n, friction) {
-            (true, _) => self.mean[k] + self.std[k] * normal(),
-            (false, true) => (self.mean[k] + self.std[k] * normal()).abs(),
-            (false, false) => 0.0,
-        });
+        let z = DVector::from_fn(self.mean.len(), |_, _| normal());
+        let mut x = self.colour(&z);
+        for k in COORDINATES * n..x.len() {
+            x[k] = if friction { x[k].abs() } else { 0.0 };
+        }
         crate::calibrate::model_with(model, &parameters(n, &x))
     }
 }
@@ -222,10 +309,11 @@ pub fn solve(
 ) -> Result<Solution, IdentifyError> {
     let n = ne.dof();
     let data = Data::new(ne, weights);
-    let precision = prior.std.map(|s| 1.0 / (s * s));
+    let precision = prior.precision();
+    let scale = prior.marginal_std();
     let objective = |x: &DVector<f64>| {
         let pi = DVector::from_vec(parameters(n, x));
-        let z = (x - &prior.mean).component_div(&prior.std);
+        let z = prior.whiten(x);
         data.cost(&pi) + 0.5 * z.dot(&z)
     };
     let mut x = start.clone();
@@ -236,8 +324,8 @@ pub fn solve(
         iterations += 1;
         let pi = DVector::from_vec(parameters(n, &x));
         let jac = jacobian(n, &x);
-        let grad = jac.transpose() * (&data.g * &pi - &data.rhs) + precision.component_mul(&(&x - &prior.mean));
-        let hessian = jac.transpose() * &data.g * &jac + DMatrix::from_diagonal(&precision);
+        let grad = jac.transpose() * (&data.g * &pi - &data.rhs) + &precision * (&x - &prior.mean);
+        let hessian = jac.transpose() * &data.g * &jac + &precision;
         let scaled = Scaled::new(&hessian)?;
         loop {
             let mut next = &x - scaled.solve(&grad, lambda);
@@ -248,7 +336,7 @@ pub fn solve(
             let f_next = objective(&next);
             if f_next <= f {
                 // Converged when the objective stops falling, or the step is nothing on the prior's scale.
-                let step = (&next - &x).component_div(&prior.std).amax();
+                let step = (&next - &x).component_div(&scale).amax();
                 converged = f - f_next <= TOLERANCE * f.max(1.0) || step < 1e-9;
                 x = next;
                 f = f_next;
@@ -263,7 +351,7 @@ pub fn solve(
         }
     }
     let jac = jacobian(n, &x);
-    let hessian = jac.transpose() * &data.g * &jac + DMatrix::from_diagonal(&precision);
+    let hessian = jac.transpose() * &data.g * &jac + &precision;
     let covariance = Scaled::new(&hessian)?.inverse();
     Ok(Solution { x, cost: f, covariance, iterations, converged })
 }
@@ -315,4 +403,68 @@ pub fn friction_coordinate(n: usize, j: usize, which: usize) -> usize {
 /// Indices of the centre-of-mass coordinates of link `l` (they are the COM itself).
 pub fn com_coordinates(l: usize) -> [usize; 3] {
     T.map(|k| COORDINATES * l + k)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynforge_robot::generator::{GeneratorConfig, generate};
+    use dynforge_robot::rng::Rng;
+
+    fn prior() -> (Model, CoordinatePrior) {
+        let model = generate(&GeneratorConfig::default(), 3, 1).expect("a generated robot").model;
+        let prior = CoordinatePrior::of(&model, 0.3).expect("a physical robot");
+        (model, prior)
+    }
+
+    #[test]
+    fn whitening_colouring_precision_and_covariance_agree() {
+        let (_, prior) = prior();
+        let mut rng = Rng::stream(3, &[]);
+        let z = DVector::from_fn(prior.mean.len(), |_, _| rng.normal());
+        let back = prior.whiten(&prior.colour(&z));
+        assert!((back - &z).amax() < 1e-12);
+        // The precision is the covariance's inverse (both built from one map and its inverse).
+        let product = prior.precision() * prior.covariance();
+        let identity = DMatrix::<f64>::identity(z.len(), z.len());
+        assert!((product - identity).amax() < 1e-9);
+    }
+
+    /// Over 4000 draws the sample standard deviation of a normal quantity is within ~1.1 % (1 / sqrt(2 N)) of the
+    /// true one; 5 % is over four of those.
+    #[test]
+    fn draws_hold_mass_scale_and_com_within_their_stated_spreads() {
+        let (model, prior) = prior();
+        let mut rng = Rng::stream(4, &[]);
+        let draws = 4000;
+        let (mut log_mass, mut log_scale, mut com) = (Vec::new(), Vec::new(), Vec::new());
+        let l = 2;
+        for _ in 0..draws {
+            let drawn = prior.draw(&model, || rng.normal()).expect("a physical draw");
+            let p = &dynamic_parameters(&drawn)[NI * l..NI * (l + 1)];
+            let theta = standard::coordinates(p).expect("physical");
+            log_mass.push(p[0].ln());
+            log_scale.push(2.0 * (theta[ALPHA] + D.iter().map(|&k| theta[k]).sum::<f64>() / 3.0));
+            com.push(theta[T[2]]);
+        }
+        let sd = |v: &[f64]| {
+            let m = v.iter().sum::<f64>() / v.len() as f64;
+            (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64).sqrt()
+        };
+        let theta = standard::coordinates(&dynamic_parameters(&model)[NI * l..NI * (l + 1)]).expect("physical");
+        let distance = T.iter().map(|&k| theta[k] * theta[k]).sum::<f64>().sqrt().max(0.01);
+        for (what, got, want) in [
+            ("log mass", sd(&log_mass), 0.3),
+            ("log tensor scale", sd(&log_scale), 0.3),
+            ("com z", sd(&com), 0.3 * distance),
+        ] {
+            assert!((got / want - 1.0).abs() < 0.05, "{what}: sd {got} where {want} is stated");
+        }
+        // Mass and tensor scale are drawn independently.
+        let n = draws as f64;
+        let (mm, ms) = (log_mass.iter().sum::<f64>() / n, log_scale.iter().sum::<f64>() / n);
+        let cov = log_mass.iter().zip(&log_scale).map(|(a, b)| (a - mm) * (b - ms)).sum::<f64>() / n;
+        let corr = cov / (sd(&log_mass) * sd(&log_scale));
+        assert!(corr.abs() < 0.07, "mass and tensor scale correlate {corr} (0 within ~4 / sqrt(N))");
+    }
 }

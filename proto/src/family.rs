@@ -20,8 +20,9 @@ pub fn excitation_file(k: usize) -> String {
     format!("excitation-{k}.json")
 }
 
-/// Relative spread of the drawn variants around the URDF's values: masses and second moments log-normally,
-/// centres of mass and products of inertia in proportion to the link's size (as `identify`'s prior reads a URDF).
+/// Relative spread of the drawn variants around the URDF's values: masses and the inertia tensors' scales
+/// log-normally and independently, the tensors' shapes within half of that, centres of mass in proportion to their
+/// distance from the link's origin (as `identify`'s prior reads a URDF).
 pub const DEFAULT_SPREAD: f64 = 0.3;
 
 /// The family of a run, as its manifest records it.
@@ -35,6 +36,18 @@ pub struct Family {
     pub welds: BTreeMap<String, f64>,
     /// Relative spread of the inertial parameters ([`DEFAULT_SPREAD`]).
     pub spread: f64,
+    /// Revision of the prior the variants are drawn from (`identify`'s `CoordinatePrior`): a family made under
+    /// another draws other robots, so a resume under this one is refused. Manifests that name none had the first.
+    #[serde(default = "first_prior")]
+    pub prior: u32,
+}
+
+/// The prior's revision: 2 draws mass, the inertia tensor's scale and its shape independently (1 drew the principal
+/// radii independently of the mass, and the centre of mass in proportion to the link's size).
+pub const PRIOR_REVISION: u32 = 2;
+
+fn first_prior() -> u32 {
+    1
 }
 
 /// Why a family's files cannot be used.
@@ -89,6 +102,7 @@ impl Sources {
             excitation_hashes: self.excitations.iter().map(|e| hex(e.as_bytes())).collect(),
             welds,
             spread,
+            prior: PRIOR_REVISION,
         }
     }
 
@@ -148,5 +162,21 @@ fn parse_excitation(text: &str, file: &str) -> Result<Excitation, FamilyError> {
                       positive period"
                 .into(),
         }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A manifest written before the prior's revision was recorded reads as the first prior, so resuming it under
+    /// this one is refused as another run rather than mixing two distributions of robots.
+    #[test]
+    fn a_family_recorded_without_a_prior_revision_is_the_first() {
+        let old = r#"{"urdf_hash": "00", "excitation_hashes": ["01"], "welds": {}, "spread": 0.3}"#;
+        let family: Family = serde_json::from_str(old).expect("an old record parses");
+        assert_eq!(family.prior, 1);
+        let now = Family { prior: PRIOR_REVISION, ..family.clone() };
+        assert_ne!(family, now);
     }
 }

@@ -155,10 +155,11 @@ impl FamilyRunner {
     fn gains(&self, sim: &SimConfig) -> SimConfig {
         let n = self.nominal.dof();
         let mut sim = sim.clone();
+        let spread = self.prior.marginal_std();
         sim.gains.inertia_floor = (0..n)
             .map(|j| {
                 let (omega, floor) = sim.gains.joint(j);
-                let coulomb = self.prior.std[friction_coordinate(n, j, 0)];
+                let coulomb = spread[friction_coordinate(n, j, 0)];
                 floor.max(2.0 * coulomb / TRACKING / (omega * omega))
             })
             .collect();

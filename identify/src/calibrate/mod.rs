@@ -423,7 +423,7 @@ fn sandwich(
     }
     meat *= ne.rows() as f64 / used as f64;
     let jac = consistent::jacobian(n, &solution.x);
-    let precision = DMatrix::from_diagonal(&prior.std.map(|s| 1.0 / (s * s)));
+    let precision = prior.precision();
     let c = &solution.covariance;
     Ok(c * (jac.transpose() * meat * &jac + precision) * c)
 }

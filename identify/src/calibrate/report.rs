@@ -211,7 +211,7 @@ impl Identification {
     pub(crate) fn new(f: Fitted) -> Self {
         let n = f.model.dof();
         let x = &f.solution.x;
-        let prior_cov = DMatrix::from_diagonal(&f.prior.std.map(|s| s * s));
+        let prior_cov = f.prior.covariance();
         let block = |c: &DMatrix<f64>, l: usize| {
             c.view((COORDINATES * l, COORDINATES * l), (COORDINATES, COORDINATES)).into_owned()
         };
@@ -241,7 +241,7 @@ impl Identification {
                 let e = |which: usize| {
                     let k = friction_coordinate(n, j, which);
                     let at = friction_index(n, j) + which;
-                    Estimated::new(pi[at], f.solution.covariance[(k, k)].sqrt(), nominal[at], f.prior.std[k])
+                    Estimated::new(pi[at], f.solution.covariance[(k, k)].sqrt(), nominal[at], prior_cov[(k, k)].sqrt())
                 };
                 JointEstimate {
                     name: f.model.joints()[j].name.clone(),
