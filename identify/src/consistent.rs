@@ -19,8 +19,8 @@ use crate::solve::scaled_pseudo_solve;
 use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
-/// viscous friction). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (see
-/// [`independent`]) and in every other coordinate: a URDF's mass, inertia and centre of mass come from different
+/// viscous friction). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (the
+/// coordinates `independent` maps a link's log mass and log radii to) and in every other coordinate: a URDF's mass, inertia and centre of mass come from different
 /// sources (a scale, a CAD model's geometry, a guess) and are off independently, while the geometry that gives the
 /// tensor's shape is what a URDF gets best.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,13 +42,13 @@ pub const SHAPE: f64 = 0.5;
 /// Independent coordinates of a link's `[a, d1, d2, d3]`: the log mass (over two), the log scale of the inertia
 /// tensor (over two: `a` plus the mean log radius), and the first two radii's log deviations from their mean. The
 /// coordinates of `x` other than these are their own independent ones.
-pub fn independent(v: [f64; 4]) -> [f64; 4] {
+fn independent(v: [f64; 4]) -> [f64; 4] {
     let mean = (v[1] + v[2] + v[3]) / 3.0;
     [v[0], v[0] + mean, v[1] - mean, v[2] - mean]
 }
 
 /// The inverse of [`independent`].
-pub fn from_independent(y: [f64; 4]) -> [f64; 4] {
+fn from_independent(y: [f64; 4]) -> [f64; 4] {
     let mean = y[1] - y[0];
     [y[0], mean + y[2], mean + y[3], mean - y[2] - y[3]]
 }
@@ -80,8 +80,8 @@ impl CoordinatePrior {
                 std[base + k] = match k {
                     ALPHA => spread / 2.0,
                     // In the independent coordinates: the tensor's scale, then two radii's shape.
-                    1 => spread / 2.0,
-                    2 | 3 => SHAPE * spread / 2.0,
+                    _ if k == D[0] => spread / 2.0,
+                    _ if D[1..].contains(&k) => SHAPE * spread / 2.0,
                     _ if S.contains(&k) => spread / 2.0 * gyration,
                     _ => spread * distance.max(0.01),
                 };
