@@ -16,8 +16,9 @@ use dynforge_identify::calibrate::{
 use dynforge_identify::signals::Conditioning;
 use dynforge_proto::content_hash;
 use dynforge_proto::family::DEFAULT_SPREAD;
-use dynforge_proto::flags::{MAX_ROBOTS, positive, weld, whole};
+use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
+use dynforge_proto::spread::Spread;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_recording::log::{read_log, read_logs};
@@ -39,9 +40,10 @@ pub struct CalibrateArgs {
     /// The `dynforge excite --out` directory of the excitations the logs ran.
     #[arg(long, value_name = "DIR")]
     excitation: PathBuf,
-    /// How far the URDF's values are trusted, relative: the family's spread and the identification's prior.
-    #[arg(long, default_value_t = DEFAULT_SPREAD, value_parser = positive)]
-    spread: f64,
+    /// How far the URDF's values are trusted, relative: the family's spread and the identification's prior. One
+    /// number, or per kind (`0.3,com=0.1`; kinds mass, com, inertia, friction).
+    #[arg(long, default_value_t = Spread::uniform(DEFAULT_SPREAD))]
+    spread: Spread,
     /// Variants of the robot in its family.
     #[arg(long, default_value_t = 64, value_parser = whole::<u64>(MIN_VARIANTS as u64, MAX_ROBOTS))]
     robots: u64,

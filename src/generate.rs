@@ -8,8 +8,9 @@ use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
 use dynforge_display::GenerationDisplay;
-use dynforge_proto::flags::{MAX_ROBOTS, positive, weld, whole};
+use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
+use dynforge_proto::spread::Spread;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_robot::generator::GeneratorConfig;
 
@@ -49,9 +50,10 @@ pub struct GenerateArgs {
     /// The `dynforge excite --out` directory of the URDF's excitations.
     #[arg(long, requires = "urdf", value_name = "DIR")]
     excitation: Option<PathBuf>,
-    /// A family's relative spread of masses and inertias (log-normal), centres of mass and friction.
-    #[arg(long, default_value_t = dynforge_proto::family::DEFAULT_SPREAD, value_parser = positive, requires = "urdf")]
-    spread: f64,
+    /// A family's relative spread of masses and inertias (log-normal), centres of mass and friction: one number, or
+    /// per kind (`0.3,com=0.1`; kinds mass, com, inertia, friction).
+    #[arg(long, default_value_t = Spread::uniform(dynforge_proto::family::DEFAULT_SPREAD), requires = "urdf")]
+    spread: Spread,
     /// A family's joint welded at a position, as the excitations were designed (`excite --fix`).
     #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld, requires = "urdf")]
     fix: Vec<(String, f64)>,

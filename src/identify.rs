@@ -7,6 +7,7 @@ use clap::{Args, ValueEnum};
 use dynforge_identify::calibrate::{Options, calibrate_to_urdf};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::flags::positive;
+use dynforge_proto::spread::Spread;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
@@ -19,8 +20,9 @@ pub struct IdentifyArgs {
     /// How far the URDF's values are trusted, relative: each mass and each inertia tensor's scale within ~this
     /// share (independently; the tensor's shape within half of it), centres of mass within this share of their
     /// distance from the link's origin (at least 1 cm), friction within this share or 2 % of the joint's effort limit.
-    #[arg(long, default_value_t = 0.5, value_parser = positive)]
-    spread: f64,
+    /// One number, or per kind (`0.5,com=0.1`; kinds mass, com, inertia, friction).
+    #[arg(long, default_value_t = Spread::uniform(0.5))]
+    spread: Spread,
     #[command(flatten)]
     signals: Signals,
     /// Weld this joint at its mean logged position (a joint the logs do not move, e.g. a gripper's); repeatable.

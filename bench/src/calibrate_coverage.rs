@@ -21,6 +21,7 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use dynforge_identify::calibrate::Kind;
 use dynforge_identify::consistent::CoordinatePrior;
+use dynforge_proto::spread::Spread;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::Rng;
@@ -144,7 +145,7 @@ fn arm_case(py: &str, s: &Settings, arm: &Arm, table: &mut Vec<String>) -> Resul
             *value = if field == "coulomb" { *c } else { *v };
         }
     }
-    let prior = CoordinatePrior::of(&truth_log.model, 0.3)?;
+    let prior = CoordinatePrior::of(&truth_log.model, Spread::uniform(0.3))?;
     let mut rows: Vec<Row> = Vec::new();
     let mut held_out: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
     let bag_args: Vec<String> = bags.iter().map(|b| b.display().to_string()).collect();

@@ -18,6 +18,7 @@ use anyhow::{Context, Result, bail};
 use dynforge_identify::calibrate::family::variant_shards;
 use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
 use dynforge_identify::consistent::CoordinatePrior;
+use dynforge_proto::spread::Spread;
 use dynforge_identify::signals::{Conditioning, EffortConvention};
 use dynforge_recording::log::read_log;
 use dynforge_robot::rng::Rng;
@@ -54,7 +55,7 @@ fn print(case: &str, zs: &mut Zs) {
     }
 }
 
-fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, seconds: f64, spread: f64) -> Result<()> {
+fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, seconds: f64, spread: Spread) -> Result<()> {
     let harness = Harness::new(py.to_string(), dir, arm);
     let truth_text = std::fs::read_to_string(&harness.urdf).with_context(|| harness.urdf.clone())?;
     let fixed: Vec<String> = arm.fixed.iter().map(|s| s.to_string()).collect();

@@ -9,6 +9,7 @@
 //! Gauss-Newton Hessian at the optimum (Laplace).
 
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI, num_params};
+use dynforge_proto::spread::Spread;
 use dynforge_robot::Model;
 use dynforge_robot::parameters::dynamic_parameters;
 use nalgebra::{DMatrix, DVector};
@@ -59,12 +60,13 @@ fn mass_and_radii(l: usize) -> [usize; 4] {
 }
 
 impl CoordinatePrior {
-    /// The prior of a robot description: its own values, each believed to within `spread` (relative): the mass and
-    /// the inertia tensor's scale log-normally (`a` and the log scale with `spread / 2`), the tensor's shape within
-    /// [`SHAPE`] of that, the off-diagonal shape within `spread / 2` of the link's radius of gyration, the centre of
-    /// mass within `spread` of its distance from the link's origin (at least 1 cm) in every direction, friction
-    /// within `spread` of its value or [`FRICTION_FLOOR`].
-    pub fn of(model: &Model, spread: f64) -> Result<Self, IdentifyError> {
+    /// The prior of a robot description: its own values, each believed to within its kind's `spread` (relative):
+    /// the mass and the inertia tensor's scale log-normally (`a` and the log scale with half the mass's and the
+    /// inertia's spread), the tensor's shape within [`SHAPE`] of its scale, the off-diagonal shape within half the
+    /// inertia's spread of the link's radius of gyration, the centre of mass within the COM's spread of its distance
+    /// from the link's origin (at least 1 cm) in every direction, friction within its spread of its value or
+    /// [`FRICTION_FLOOR`].
+    pub fn of(model: &Model, spread: Spread) -> Result<Self, IdentifyError> {
         let n = model.dof();
         let pi = dynamic_parameters(model);
         let mut mean = DVector::zeros(coordinates(n));
@@ -78,12 +80,12 @@ impl CoordinatePrior {
             for k in 0..COORDINATES {
                 mean[base + k] = theta[k];
                 std[base + k] = match k {
-                    ALPHA => spread / 2.0,
+                    ALPHA => spread.mass / 2.0,
                     // In the independent coordinates: the tensor's scale, then two radii's shape.
-                    _ if k == D[0] => spread / 2.0,
-                    _ if D[1..].contains(&k) => SHAPE * spread / 2.0,
-                    _ if S.contains(&k) => spread / 2.0 * gyration,
-                    _ => spread * distance.max(0.01),
+                    _ if k == D[0] => spread.inertia / 2.0,
+                    _ if D[1..].contains(&k) => SHAPE * spread.inertia / 2.0,
+                    _ if S.contains(&k) => spread.inertia / 2.0 * gyration,
+                    _ => spread.com * distance.max(0.01),
                 };
             }
         }
@@ -92,8 +94,8 @@ impl CoordinatePrior {
             let (effort, speed) = (joint.limits.effort, joint.limits.velocity);
             mean[at] = joint.friction.coulomb;
             mean[at + 1] = joint.friction.viscous;
-            std[at] = (spread * joint.friction.coulomb).max(FRICTION_FLOOR * effort);
-            std[at + 1] = (spread * joint.friction.viscous).max(FRICTION_FLOOR * effort / speed);
+            std[at] = (spread.friction * joint.friction.coulomb).max(FRICTION_FLOOR * effort);
+            std[at + 1] = (spread.friction * joint.friction.viscous).max(FRICTION_FLOOR * effort / speed);
         }
         Ok(CoordinatePrior { mean, std, links: n })
     }
@@ -413,7 +415,7 @@ mod tests {
 
     fn prior() -> (Model, CoordinatePrior) {
         let model = generate(&GeneratorConfig::default(), 3, 1).expect("a generated robot").model;
-        let prior = CoordinatePrior::of(&model, 0.3).expect("a physical robot");
+        let prior = CoordinatePrior::of(&model, Spread::uniform(0.3)).expect("a physical robot");
         (model, prior)
     }
 
@@ -428,6 +430,23 @@ mod tests {
         let product = prior.precision() * prior.covariance();
         let identity = DMatrix::<f64>::identity(z.len(), z.len());
         assert!((product - identity).amax() < 1e-9);
+    }
+
+    /// A spread per kind moves only its kind: the COM's prior narrows with `com=`, the mass's and friction's stay.
+    #[test]
+    fn a_kind_s_spread_sets_only_that_kind_s_prior() {
+        let (model, uniform) = prior();
+        let tight = CoordinatePrior::of(&model, "0.3,com=0.1".parse().expect("a spread")).expect("physical");
+        let (u, t) = (uniform.marginal_std(), tight.marginal_std());
+        let n = model.dof();
+        for l in 0..n {
+            for k in T.map(|k| COORDINATES * l + k) {
+                assert!((t[k] / u[k] - 1.0 / 3.0).abs() < 1e-12, "link {l} COM: {} vs {}", t[k], u[k]);
+            }
+            assert_eq!(t[COORDINATES * l + ALPHA], u[COORDINATES * l + ALPHA]);
+            assert_eq!(t[COORDINATES * l + D[2]], u[COORDINATES * l + D[2]]);
+        }
+        assert_eq!(t.rows(COORDINATES * n, NF * n), u.rows(COORDINATES * n, NF * n));
     }
 
     /// Over 4000 draws the sample standard deviation of a normal quantity is within ~1.1 % (1 / sqrt(2 N)) of the

@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::content_hash;
 use crate::fourier::Excitation;
+use crate::spread::Spread;
 
 /// The run directory's family folder, and its URDF.
 pub const DIR: &str = "family";
@@ -34,8 +35,8 @@ pub struct Family {
     pub excitation_hashes: Vec<String>,
     /// Joints welded at a position (`--fix NAME=POS`), as the excitations were designed.
     pub welds: BTreeMap<String, f64>,
-    /// Relative spread of the inertial parameters ([`DEFAULT_SPREAD`]).
-    pub spread: f64,
+    /// Relative spread of the inertial parameters and friction, per kind ([`DEFAULT_SPREAD`] for all by default).
+    pub spread: Spread,
     /// Revision of the prior the variants are drawn from (`identify`'s `CoordinatePrior`): a family made under
     /// another draws other robots, so a resume under this one is refused. Manifests that name none had the first.
     #[serde(default = "first_prior")]
@@ -96,7 +97,7 @@ impl Sources {
     }
 
     /// The manifest's record of these files.
-    pub fn family(&self, welds: BTreeMap<String, f64>, spread: f64) -> Family {
+    pub fn family(&self, welds: BTreeMap<String, f64>, spread: Spread) -> Family {
         Family {
             urdf_hash: hex(self.urdf.as_bytes()),
             excitation_hashes: self.excitations.iter().map(|e| hex(e.as_bytes())).collect(),

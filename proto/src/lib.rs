@@ -21,6 +21,7 @@ pub mod params;
 pub mod run_dir;
 pub mod shard;
 pub mod sim;
+pub mod spread;
 
 pub use labels::{LABELS, Label, LabelKind, NUM_LABELS};
 pub use params::{FRICTION_PARAMS_PER_JOINT, INERTIAL_PARAMS_PER_LINK, InertialParam};

@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use dynforge_identify::consistent::{CoordinatePrior, friction_coordinate};
+use dynforge_proto::spread::Spread;
 use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
@@ -91,7 +92,7 @@ pub fn prepare(
     urdf: &Path,
     excitations: &Path,
     welds: Welds,
-    spread: f64,
+    spread: Spread,
     engine: EngineKind,
 ) -> Result<(Family, Sources), FamilySetupError> {
     let sources = Sources::read(urdf, excitations)?;

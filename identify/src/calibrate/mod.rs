@@ -23,6 +23,7 @@ pub use written::{Calibrated, HeldOut, calibrate_to_urdf, check_output, write_ca
 use std::path::PathBuf;
 
 use dynforge_proto::params::friction_index;
+use dynforge_proto::spread::Spread;
 use dynforge_recording::log::{Log, read_logs, still_joints};
 use dynforge_recording::{JointTrajectory, ReadError};
 use dynforge_robot::Model;
@@ -45,7 +46,7 @@ use crate::solve::least_squares;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Options {
     /// How far the URDF's values are trusted (relative; see [`CoordinatePrior::of`]).
-    pub spread: f64,
+    pub spread: Spread,
     pub conditioning: Conditioning,
     /// Joints welded at their mean logged position (e.g. a gripper's, still during the excitation).
     pub fixed: Vec<String>,
@@ -53,7 +54,7 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { spread: 0.5, conditioning: Conditioning::default(), fixed: Vec::new() }
+        Options { spread: Spread::uniform(0.5), conditioning: Conditioning::default(), fixed: Vec::new() }
     }
 }
 

@@ -122,10 +122,10 @@ impl Session<'_> {
             return Err(SessionError::Setup(format!(
                 "{} is a robot's family (`generate --urdf`), labelled with its standard parameters; the estimators \
                  learn the generator's robots and their 38 labels. For a family drawn from the URDF's prior, \
-                 `identify --spread {}` already is the best estimator; `dynforge calibrate` uses the family to \
-                 measure the spreads it reports on that robot",
+                 `identify --spread {}` already gives the most probable values; `dynforge calibrate` uses the \
+                 family to measure the spreads it reports on that robot",
                 self.data.display(),
-                m.family.map_or(0.0, |f| f.spread)
+                m.family.map_or_else(String::new, |f| f.spread.to_string())
             )));
         }
         let (previous, resume) = self.previous(observer)?;
