@@ -10,8 +10,8 @@ use dynforge_coordinator::verify;
 use dynforge_display::GenerationDisplay;
 use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
-use dynforge_proto::spread::Spread;
 use dynforge_proto::sim::{EngineKind, SimConfig};
+use dynforge_proto::spread::Spread;
 use dynforge_robot::generator::GeneratorConfig;
 
 #[derive(Args)]

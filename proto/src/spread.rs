@@ -62,7 +62,9 @@ impl fmt::Display for Spread {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.is_uniform() {
             true => write!(f, "{}", self.mass),
-            false => write!(f, "mass={},com={},inertia={},friction={}", self.mass, self.com, self.inertia, self.friction),
+            false => {
+                write!(f, "mass={},com={},inertia={},friction={}", self.mass, self.com, self.inertia, self.friction)
+            }
         }
     }
 }

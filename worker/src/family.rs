@@ -11,12 +11,12 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use dynforge_identify::consistent::{CoordinatePrior, friction_coordinate};
-use dynforge_proto::spread::Spread;
 use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
 use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
 use dynforge_proto::sim::EngineKind;
+use dynforge_proto::spread::Spread;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::spatial::Se3;
