@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_coordinator::run::GenerateConfig;
-use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration, variant_shards};
+use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration};
 use dynforge_identify::calibrate::{
     Calibrated, Identification, Kind, Options, check_output, identify_logs, identify_read, write_calibrated,
 };
@@ -21,6 +21,7 @@ use dynforge_proto::manifest::Partition;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_proto::spread::Spread;
+use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{read_log, read_logs};
 use dynforge_robot::generator::GeneratorConfig;
 use serde_json::json;
@@ -68,7 +69,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let (text, source) = read_urdf_file(&args.urdf)?;
     let document = Some((text.as_str(), source.as_str()));
     let fixed: Vec<String> = args.fix.iter().map(|(name, _)| name.clone()).collect();
-    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed: fixed.clone() };
+    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed };
 
     // The files first, then the bag: what cannot be used is refused before minutes of simulation.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
@@ -102,14 +103,13 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     execute(&cfg, &mut std::io::stderr()).with_context(|| format!("making the robot's family in {}", dir.display()))?;
 
     let variants = Options {
-        spread: args.spread,
         conditioning: Conditioning {
             velocity: Some(id.velocity.source),
             cutoff: id.velocity.cutoff,
             // The variants' efforts are taken as the bag's were (`Degradation::effort`).
             effort: Some(id.effort),
         },
-        fixed,
+        ..options.clone()
     };
     let spreads = family_spreads(&dir, document, &degradation, &variants)?;
     let mut calibrated = write_calibrated(id, &read, document, &options, &args.output.holdout, &out)?;
@@ -164,7 +164,7 @@ fn family_spreads(
         eprintln!("spreads: measured before at this noise ({})", path.display());
         return Ok(spreads);
     }
-    let shards = variant_shards(dir).with_context(|| format!("reading {}", dir.join(SHARDS).display()))?;
+    let shards = shards_by_robot(dir).with_context(|| format!("reading {}", dir.join(SHARDS).display()))?;
     let bar = dynforge_display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
     bar.set_length(shards.len() as u64);
     let (mut pairs, mut refused) = (Vec::new(), 0);

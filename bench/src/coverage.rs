@@ -74,19 +74,10 @@ fn main() -> Result<()> {
     }
     let [ckpt, data] = positional.as_slice() else { bail!("usage: dynforge-bench-coverage CHECKPOINT DATA") };
     let predictor = Predictor::load(std::path::Path::new(ckpt))?;
-    let mut by_robot: BTreeMap<u64, Vec<std::path::PathBuf>> = BTreeMap::new();
-    for e in std::fs::read_dir(std::path::Path::new(data).join("shards"))? {
-        let path = e?.path();
-        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default().to_string();
-        if let Some(r) = dynforge_proto::shard::robot_of_file_name(&name) {
-            by_robot.entry(r).or_default().push(path);
-        }
-    }
+    let by_robot = dynforge_recording::dataset::shards_by_robot(std::path::Path::new(data))?;
     let chosen: Vec<(u64, Vec<std::path::PathBuf>)> = by_robot.into_iter().take(robots).collect();
     eprintln!("{} robots of {data}", chosen.len());
     let results = dynforge_proto::parallel::map_in_order(&chosen, |(robot, paths)| -> Result<(Zs, Zs, usize)> {
-        let mut paths = paths.clone();
-        paths.sort();
         let recs: Vec<Recording> = paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
         let truth = recs[0].labels.with_context(|| format!("robot {robot}: no labels"))?;
         let refs: Vec<&Recording> = recs.iter().collect();

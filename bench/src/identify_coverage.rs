@@ -15,11 +15,11 @@
 use std::collections::BTreeMap;
 
 use anyhow::{Context, Result, bail};
-use dynforge_identify::calibrate::family::variant_shards;
 use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
 use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_identify::signals::{Conditioning, EffortConvention};
 use dynforge_proto::spread::Spread;
+use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::read_log;
 use dynforge_robot::rng::Rng;
 use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
@@ -107,7 +107,7 @@ fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Resu
         conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
         fixed: fixed.to_vec(),
     };
-    let shards = variant_shards(dir)?;
+    let shards = shards_by_robot(dir)?;
     for (case, first_only) in [("first log", true), ("all logs", false)] {
         let (mut zs, mut failed, mut used) = (Zs::new(), 0, 0);
         for (r, mine) in shards.iter().take(robots as usize) {

@@ -21,9 +21,9 @@ use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
 /// viscous friction). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (the
-/// coordinates `independent` maps a link's log mass and log radii to) and in every other coordinate: a URDF's mass, inertia and centre of mass come from different
-/// sources (a scale, a CAD model's geometry, a guess) and are off independently, while the geometry that gives the
-/// tensor's shape is what a URDF gets best.
+/// coordinates `independent` maps a link's log mass and log radii to) and in every other coordinate: a URDF's mass,
+/// inertia and centre of mass come from different sources (a scale, a CAD model's geometry, a guess) and are off
+/// independently, while the geometry that gives the tensor's shape is what a URDF gets best.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CoordinatePrior {
     pub mean: DVector<f64>,
@@ -138,21 +138,12 @@ impl CoordinatePrior {
         self.covariance().diagonal().map(f64::sqrt)
     }
 
-    /// The matrix over `x` of `f` ([`independent`] or its inverse) on every link's mass and radii, the identity
-    /// elsewhere.
+    /// The matrix of [`CoordinatePrior::on_links`] with `f` (linear): its columns are the unit vectors mapped.
     fn linear(&self, f: fn([f64; 4]) -> [f64; 4]) -> DMatrix<f64> {
-        let mut m = DMatrix::identity(self.mean.len(), self.mean.len());
-        for l in 0..self.links {
-            let at = mass_and_radii(l);
-            for (c, &k) in at.iter().enumerate() {
-                let mut unit = [0.0; 4];
-                unit[c] = 1.0;
-                for (r, v) in f(unit).iter().enumerate() {
-                    m[(at[r], k)] = *v;
-                }
-            }
-        }
-        m
+        let p = self.mean.len();
+        let columns: Vec<DVector<f64>> =
+            (0..p).map(|k| self.on_links(DVector::from_fn(p, |r, _| if r == k { 1.0 } else { 0.0 }), f)).collect();
+        DMatrix::from_columns(&columns)
     }
 
     /// A robot drawn from this prior: `model`'s kinematics with each link's inertial at coordinates drawn from

@@ -31,6 +31,19 @@ pub fn list_shards(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     Ok(out)
 }
 
+/// The complete shards of `dir`'s shard directory by the robot their names carry (each robot's in name order, i.e.
+/// by trajectory): a dataset's robots, a family's variants.
+pub fn shards_by_robot(dir: &Path) -> std::io::Result<BTreeMap<u64, Vec<PathBuf>>> {
+    let mut out: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
+    for path in list_shards(dir)? {
+        if let Some(r) = path.file_name().and_then(|n| dynforge_proto::shard::robot_of_file_name(&n.to_string_lossy()))
+        {
+            out.entry(r).or_default().push(path);
+        }
+    }
+    Ok(out)
+}
+
 /// Remembers which shards of a directory were already handed out.
 #[derive(Debug, Default)]
 pub struct ShardFollower {

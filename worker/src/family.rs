@@ -86,8 +86,8 @@ impl Collides for Unchecked {
 }
 
 /// The family of `urdf` on the excitations in `excitations` (as `dynforge excite --out` wrote them), checked as the
-/// workers will read it: its manifest record and its files.
-/// The family is refused up front if `engine` cannot simulate the URDF (with its welds).
+/// workers will read it: its manifest record and its files; refused up front if `engine` cannot simulate the URDF
+/// (with its welds).
 pub fn prepare(
     urdf: &Path,
     excitations: &Path,
@@ -96,6 +96,7 @@ pub fn prepare(
     engine: EngineKind,
 ) -> Result<(Family, Sources), FamilySetupError> {
     let sources = Sources::read(urdf, excitations)?;
+    // The engine first: a family it cannot simulate is refused whatever else is wrong with it.
     let model = parse_welded(&sources.urdf, &urdf.display().to_string(), &welds)?;
     if let Some(Discard::Unsupported { engine, joint, why }) = unsupported(engine, &model) {
         let joint = model.joints()[joint].name.clone();

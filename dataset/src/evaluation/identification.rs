@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 use dynforge_identify::{NormalEquations, Prior, TorqueError, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
-use dynforge_recording::dataset::{list_shards, shard_dir};
+use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::{Recording, read};
 use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
@@ -105,15 +105,9 @@ pub(crate) fn check(
     errors: &BTreeMap<u64, [f64; NUM_LABELS]>,
     progress: &mut impl FnMut(&str, usize, usize),
 ) -> Result<Option<IdentificationCheck>, EvaluationError> {
-    let mut by_robot: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
-    for p in list_shards(&shard_dir(data)).unwrap_or_default() {
-        let robot = p.file_name().and_then(|n| n.to_str()).and_then(dynforge_proto::shard::robot_of_file_name);
-        if let Some(r) = robot.filter(|&r| estimator.holds_out_robot(r)) {
-            by_robot.entry(r).or_default().push(p);
-        }
-    }
+    let by_robot = shards_by_robot(data).unwrap_or_default();
     let (ids, robots): (Vec<u64>, Vec<Vec<PathBuf>>) =
-        by_robot.into_iter().filter(|(_, v)| v.len() >= 2).take(max_robots).unzip();
+        by_robot.into_iter().filter(|(r, v)| estimator.holds_out_robot(*r) && v.len() >= 2).take(max_robots).unzip();
     let (_, label_std) = estimator.label_statistics();
     // The hybrid's prior spread for robot r: the network's RMS error over every other validation robot (leave one
     // out), or the training spread when too few others are known.

@@ -9,11 +9,6 @@
 //! is, and each parameter's standardized errors `z = (value - truth) / std` give the factor its spread needs
 //! ([`SpreadCalibration`]).
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
-
-use dynforge_proto::run_dir::SHARDS;
-use dynforge_proto::shard::robot_of_file_name;
 use dynforge_recording::JointTrajectory;
 use dynforge_recording::log::Log;
 use dynforge_robot::rng::Rng;
@@ -94,19 +89,6 @@ impl Degradation {
 /// How close to a multiple of the step (in steps) a quantized position is: an encoder's count times its step,
 /// rounded to a double, is within ~1e-10 steps of it at a thousand revolutions.
 const GRID_TOLERANCE: f64 = 1e-6;
-
-/// The shards of a family's run directory `dir`, by variant (robot), each variant's in trajectory order.
-pub fn variant_shards(dir: &Path) -> std::io::Result<BTreeMap<u64, Vec<PathBuf>>> {
-    let mut out: BTreeMap<u64, Vec<PathBuf>> = BTreeMap::new();
-    for entry in std::fs::read_dir(dir.join(SHARDS))? {
-        let path = entry?.path();
-        if let Some(r) = path.file_name().and_then(|n| robot_of_file_name(&n.to_string_lossy())) {
-            out.entry(r).or_default().push(path);
-        }
-    }
-    out.values_mut().for_each(|v| v.sort());
-    Ok(out)
-}
 
 /// One parameter's standardized errors over a family's variants, and the factor its spread is given.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -117,7 +117,7 @@ impl Session<'_> {
             return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
         }
         if let Some(m) = dynforge_proto::manifest::Manifest::load(self.data).map_err(ReadError::from)?
-            && m.family.is_some()
+            && let Some(family) = m.family
         {
             return Err(SessionError::Setup(format!(
                 "{} is a robot's family (`generate --urdf`), labelled with its standard parameters; the estimators \
@@ -125,7 +125,7 @@ impl Session<'_> {
                  `identify --spread {}` already gives the most probable values; `dynforge calibrate` uses the \
                  family to measure the spreads it reports on that robot",
                 self.data.display(),
-                m.family.map_or_else(String::new, |f| f.spread.to_string())
+                family.spread
             )));
         }
         let (previous, resume) = self.previous(observer)?;
