@@ -3,24 +3,30 @@
 //! calibration assumes (each link's log-Cholesky coordinates around the true ones with the `--spread` it is given,
 //! no friction), so that the truth lies where the prior says. Each parameter's `z = (value - truth) / std` should
 //! fall within 1 about 68 % of the time and within 2 about 95 %, per kind, clean and noisy (1 % effort noise, 2^17
-//! encoders, velocity from encoder differences).
+//! encoders, velocity from encoder differences). Each nominal has a log of its own (another multi-sine, another
+//! noise draw), so that the parameters the torques decide are as many draws as the nominals.
 //!
 //! Usage: DYNFORGE_PYTHON=.venv/bin/python dynforge-bench-identify-coverage [--nominals N] [--seconds S]
-//! [--spread X]
+//! [--spread X] [--dump FILE]
 //!
 //! Or on a robot's family (`generate --urdf`, simulated by dynforge's own engine, noise-free): each variant
 //! identified from the family's URDF with the family's spread, from its first log and from all its logs, against the
-//! truth its shard carries: `dynforge-bench-identify-coverage --family DIR [--robots N] [--fix JOINT ...]`.
+//! truth its shard carries: `dynforge-bench-identify-coverage --family DIR [--robots N] [--fix JOINT ...]
+//! [--noise X] [--dump FILE]`. `--noise X` degrades every variant's logs as a bag's (white effort noise of X times
+//! each joint's torque RMS, a 2^17 counts/rev encoder, the velocity from the positions); `--dump` writes every
+//! parameter's z, value, truth and spreads, a line each.
 
 use std::collections::BTreeMap;
 
 use anyhow::{Context, Result, bail};
+use dynforge_identify::calibrate::family::Degradation;
+use dynforge_identify::calibrate::identify_read;
 use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
 use dynforge_identify::consistent::CoordinatePrior;
-use dynforge_identify::signals::{Conditioning, EffortConvention};
+use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::spread::Spread;
 use dynforge_recording::dataset::shards_by_robot;
-use dynforge_recording::log::read_log;
+use dynforge_recording::log::{Log, read_log, read_logs};
 use dynforge_robot::rng::Rng;
 use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
 
@@ -55,13 +61,19 @@ fn print(case: &str, zs: &mut Zs) {
     }
 }
 
-fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, seconds: f64, spread: Spread) -> Result<()> {
+fn arm_coverage(
+    py: &str,
+    dir: &std::path::Path,
+    arm: &Arm,
+    (nominals, seconds, spread): (u64, f64, Spread),
+    dump: &mut Dump,
+) -> Result<()> {
     let harness = Harness::new(py.to_string(), dir, arm);
     let truth_text = std::fs::read_to_string(&harness.urdf).with_context(|| harness.urdf.clone())?;
     let fixed: Vec<String> = arm.fixed.iter().map(|s| s.to_string()).collect();
     for kind in [LogKind::Clean, LogKind::Noisy] {
-        let log = harness.log(arm, 1, seconds, "held", kind, 1000.0);
-        let truth = read_log(&log, Some((&truth_text, "true.urdf")), &fixed)?;
+        let truth =
+            read_log(&harness.log(arm, 1, seconds, "held", kind, 1000.0), Some((&truth_text, "true.urdf")), &fixed)?;
         let prior = CoordinatePrior::of(&truth.model, spread)?;
         let options = Options {
             spread,
@@ -74,6 +86,9 @@ fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, secon
             let mut rng = Rng::stream(7, &[i]);
             let nominal = prior.draw(&truth.model, || rng.normal())?;
             let (text, _) = dynforge_robot::urdf::patch_welded(&truth.document, &truth.source, &nominal, &truth.welds)?;
+            // A log of its own per nominal (another motion, another noise draw): with one log for all, the
+            // parameters the torques decide would err alike on every nominal, one draw counted thirty times.
+            let log = harness.log(arm, 1 + i, seconds, "held", kind, 1000.0);
             match identify_logs(std::slice::from_ref(&log), Some((&text, "nominal.urdf")), &options) {
                 Ok((id, _)) => {
                     let mut at_truth = id.clone();
@@ -84,6 +99,9 @@ fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, secon
                         (j.coulomb.value, j.viscous.value) = (*c, *v);
                     }
                     add(&mut zs, &id, &at_truth);
+                    if let Some(out) = dump.as_mut() {
+                        write_dump(out, &format!("{} {kind:?}", arm.name), i, &id, &at_truth)?;
+                    }
                 }
                 Err(e) => {
                     failed += 1;
@@ -97,14 +115,78 @@ fn arm_coverage(py: &str, dir: &std::path::Path, arm: &Arm, nominals: u64, secon
     Ok(())
 }
 
+/// The degradation of a bag of the robot `logs` show: white effort noise of `noise` times each joint's torque RMS,
+/// positions on a 2^17 counts/rev encoder's grid, the effort held (the family's).
+fn bag_like(logs: &[Log], noise: f64) -> Degradation {
+    let n = logs[0].model.dof();
+    let (mut sum, mut count) = (vec![0.0; n], 0usize);
+    for seg in logs.iter().flat_map(|l| &l.segments) {
+        for row in seg.tau.chunks(n) {
+            for (s, t) in sum.iter_mut().zip(row) {
+                *s += t * t;
+            }
+            count += 1;
+        }
+    }
+    Degradation {
+        effort: EffortConvention::Held,
+        effort_noise: sum.iter().map(|s| noise * (s / count.max(1) as f64).sqrt()).collect(),
+        encoder_step: vec![Some(std::f64::consts::TAU / f64::from(1u32 << 17)); n],
+    }
+}
+
+/// Every parameter of a variant's identification, a line each: case, robot, name, what decided it, z, value, truth,
+/// std, prior std, and the identification's iterations and torque NRMSE (calibrated, least squares).
+fn write_dump(
+    out: &mut impl std::io::Write,
+    case: &str,
+    robot: u64,
+    id: &Identification,
+    truth: &Identification,
+) -> Result<()> {
+    for (p, t) in id.parameters().into_iter().zip(truth.parameters()) {
+        let e = p.estimate;
+        let z = e.z(t.estimate.value);
+        writeln!(
+            out,
+            "{case}\t{robot}\t{}\t{:?}\t{z}\t{}\t{}\t{}\t{}\t{}\t{}\t{}",
+            p.name,
+            e.decided,
+            e.value,
+            t.estimate.value,
+            e.std,
+            e.prior_std,
+            id.iterations,
+            id.nrmse_calibrated,
+            id.nrmse_least_squares
+        )?;
+    }
+    Ok(())
+}
+
+/// Where every parameter's z is written, when asked (`--dump`).
+type Dump = Option<std::io::BufWriter<std::fs::File>>;
+
+/// What a family's coverage is asked: the variants, the welded joints and the bag's effort noise (relative; 0 for
+/// the shards as they are).
+struct FamilyCase {
+    robots: u64,
+    fixed: Vec<String>,
+    noise: f64,
+}
+
 /// Coverage over the variants of a family run directory: from each variant's first log, and from all its logs.
-fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Result<()> {
+fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) -> Result<()> {
+    let FamilyCase { robots, fixed, noise } = case;
+    let (robots, noise) = (*robots, *noise);
     let manifest = dynforge_proto::manifest::Manifest::load(dir)?.context("a run directory")?;
     let family = manifest.family.context("a family's run directory (generate --urdf)")?;
     let urdf = std::fs::read_to_string(dir.join("family/robot.urdf"))?;
+    // A bag's velocity is its encoder's differences: from positions, as identify takes it.
+    let velocity = (noise > 0.0).then_some(VelocitySource::Positions);
     let options = Options {
         spread: family.spread,
-        conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
+        conditioning: Conditioning { effort: Some(EffortConvention::Held), velocity, ..Conditioning::default() },
         fixed: fixed.to_vec(),
     };
     let shards = shards_by_robot(dir)?;
@@ -116,11 +198,21 @@ fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Resu
                 mine.truncate(1);
             }
             let truth = read_log(&mine[0], None, fixed)?.model;
-            match identify_logs(&mine, Some((&urdf, "robot.urdf")), &options) {
+            let mut logs = read_logs(&mine, Some((&urdf, "robot.urdf")), fixed)?;
+            if noise > 0.0 {
+                let degradation = bag_like(&logs, noise);
+                for (k, log) in logs.iter_mut().enumerate() {
+                    degradation.apply(log, *r * 16 + k as u64);
+                }
+            }
+            match identify_read(logs, &options) {
                 Ok((id, _)) => {
                     let mut at_truth = id.clone();
                     at_truth.report_values_of(&truth);
                     add(&mut zs, &id, &at_truth);
+                    if let Some(out) = dump.as_mut() {
+                        write_dump(out, case, *r, &id, &at_truth)?;
+                    }
                     used += 1;
                 }
                 Err(e) => {
@@ -138,7 +230,7 @@ fn family_coverage(dir: &std::path::Path, robots: u64, fixed: &[String]) -> Resu
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut nominals, mut seconds, mut spread) = (20u64, 30.0, Options::default().spread);
-    let (mut family, mut robots, mut fixed) = (None, 100u64, Vec::new());
+    let (mut family, mut robots, mut fixed, mut noise, mut dump) = (None, 100u64, Vec::new(), 0.0, None);
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
         match a.as_str() {
@@ -148,13 +240,18 @@ fn main() -> Result<()> {
             "--family" => family = Some(std::path::PathBuf::from(value()?)),
             "--robots" => robots = value()?.parse()?,
             "--fix" => fixed.push(value()?),
+            "--noise" => noise = value()?.parse()?,
+            "--dump" => {
+                let path = value()?;
+                dump = Some(std::io::BufWriter::new(std::fs::File::create(&path).with_context(|| path.clone())?));
+            }
             _ => bail!("unknown option {a}"),
         }
     }
     if let Some(dir) = family {
         println!("| case | parameters | decided by | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
         println!("|---|---|---|---|---|---|---|");
-        return family_coverage(&dir, robots, &fixed);
+        return family_coverage(&dir, &FamilyCase { robots, fixed, noise }, &mut dump);
     }
     let py = std::env::var("DYNFORGE_PYTHON").context("DYNFORGE_PYTHON: the venv of scripts/venv.sh")?;
     let dir = std::env::temp_dir().join(format!("dynforge-identify-coverage-{}", std::process::id()));
@@ -164,7 +261,9 @@ fn main() -> Result<()> {
     );
     println!("| case | parameters | decided by | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
     println!("|---|---|---|---|---|---|---|");
-    let result = [&UR5, &PANDA].into_iter().try_for_each(|arm| arm_coverage(&py, &dir, arm, nominals, seconds, spread));
+    let result = [&UR5, &PANDA]
+        .into_iter()
+        .try_for_each(|arm| arm_coverage(&py, &dir, arm, (nominals, seconds, spread), &mut dump));
     std::fs::remove_dir_all(&dir)?;
     result
 }

@@ -254,6 +254,7 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
             out
         }
     };
+    bag.joint_states.reserve(decoded.len());
     for d in decoded {
         match d {
             Decoded::JointState(m) => bag.joint_states.push(m),
@@ -329,9 +330,12 @@ fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Resu
         }
         Ok(out)
     });
-    let mut out = Vec::new();
+    let parts: Vec<Vec<Decoded>> = parts.into_iter().collect::<Result<_, _>>()?;
+    // Sized once: an hour of log is millions of messages, and growing by doubling copies them and faults in the
+    // pages twice over.
+    let mut out = Vec::with_capacity(parts.iter().map(Vec::len).sum());
     for part in parts {
-        out.extend(part?);
+        out.extend(part);
     }
     Ok(out)
 }

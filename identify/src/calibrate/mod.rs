@@ -351,7 +351,7 @@ fn fit(
     let weight = |j: usize, variance: f64, correlation: f64| 1.0 / (variance.max(floor(j).powi(2)) * correlation);
     let mut weights: Vec<f64> =
         (0..n).map(|j| weight(j, ne_joint_rss(ne, j, &ls.pi) / ne.joint(j).3 as f64, 1.0)).collect();
-    let mut solution = consistent::solve_from_both(ne, &weights, &prior)?;
+    let mut solution = consistent::solve(ne, &weights, &prior, &prior.mean)?;
     let mut measured = vec![Correlation::default(); n];
     for _ in 0..2 {
         let calibrated = model_with(model, &consistent::parameters(n, &solution.x))?;
