@@ -330,11 +330,8 @@ pub fn effort_noise(segments: &[&JointTrajectory]) -> Vec<(f64, f64)> {
                     }
                 }
             }
-            if d2.is_empty() {
-                return (0.0, 0.0);
-            }
-            d2.sort_by(f64::total_cmp);
-            let sigma = d2[d2.len() / 2] / (0.6745 * 6f64.sqrt());
+            let Some(median) = dynforge_recording::samples::median(&mut d2) else { return (0.0, 0.0) };
+            let sigma = median / (0.6745 * 6f64.sqrt());
             let c = count as f64;
             (sigma, (sum2 / c - (sum / c).powi(2)).max(0.0).sqrt())
         })

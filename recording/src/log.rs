@@ -167,12 +167,7 @@ fn mean_position(bag: &Bag, name: &str) -> Option<f64> {
 /// (resampled linearly when the stamps jitter by more than 1 %).
 fn segments(mut traj: JointTrajectory, notes: &mut Vec<String>) -> (f64, Vec<JointTrajectory>) {
     let steps: Vec<f64> = traj.t.windows(2).map(|w| w[1] - w[0]).collect();
-    if steps.is_empty() {
-        return (0.0, Vec::new());
-    }
-    let mut sorted = steps.clone();
-    sorted.sort_by(f64::total_cmp);
-    let dt = sorted[sorted.len() / 2];
+    let Some(dt) = crate::samples::median(&mut steps.clone()) else { return (0.0, Vec::new()) };
     let mut cuts: Vec<usize> = vec![0];
     cuts.extend(steps.iter().enumerate().filter(|(_, s)| **s > GAP_PERIODS * dt).map(|(i, _)| i + 1));
     cuts.push(traj.len());

@@ -201,9 +201,7 @@ pub struct Gap {
 /// The first gap of the sample times `t` (increasing), if any.
 pub fn first_gap(t: &[f64]) -> Option<Gap> {
     let steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    let mut sorted = steps.clone();
-    sorted.sort_by(f64::total_cmp);
-    let period = *sorted.get(sorted.len() / 2)?;
+    let period = crate::samples::median(&mut steps.clone())?;
     steps.iter().position(|&s| s > GAP_PERIODS * period).map(|i| Gap { after: t[i], length: steps[i], period })
 }
 

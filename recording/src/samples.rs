@@ -162,6 +162,18 @@ fn joint_states(
     Ok((out, with_velocity))
 }
 
+/// The median of `values` (the upper one of an even count: the element a sort would put at `len / 2`), found by
+/// selection in linear time; `values` is reordered. `None` when empty. Logs of an hour hold millions of steps and
+/// differences, where a sort per median was a measurable share of reading them.
+pub fn median(values: &mut [f64]) -> Option<f64> {
+    if values.is_empty() {
+        return None;
+    }
+    let half = values.len() / 2;
+    let (_, &mut m, _) = values.select_nth_unstable_by(half, f64::total_cmp);
+    Some(m)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -231,5 +243,17 @@ mod tests {
         let bag = Bag { joint_states: (0..8001).map(|k| message(0, &["j0"], k as f64)).collect(), ..Bag::default() };
         let e = from_bag(&bag, &names, Path::new("unstamped.mcap")).unwrap_err().to_string();
         assert!(e.starts_with("unstamped.mcap: 8000 of 8001 joint_states messages repeat"), "{e}");
+    }
+
+    #[test]
+    fn the_median_is_the_element_a_sort_puts_at_half_the_length() {
+        assert_eq!(median(&mut []), None);
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(3.0));
+        let mut rng = dynforge_robot::rng::Rng::stream(5, &[]);
+        let values: Vec<f64> = (0..1001).map(|_| rng.normal()).collect();
+        let mut sorted = values.clone();
+        sorted.sort_by(f64::total_cmp);
+        assert_eq!(median(&mut values.clone()), Some(sorted[500]));
     }
 }
