@@ -72,8 +72,11 @@ fn arm_coverage(
     let truth_text = std::fs::read_to_string(&harness.urdf).with_context(|| harness.urdf.clone())?;
     let fixed: Vec<String> = arm.fixed.iter().map(|s| s.to_string()).collect();
     for kind in [LogKind::Clean, LogKind::Noisy] {
-        let truth =
-            read_log(&harness.log(arm, 1, seconds, "held", kind, 1000.0), Some((&truth_text, "true.urdf")), &fixed)?;
+        // A log of its own per nominal (another motion, another noise draw): with one log for all, the parameters
+        // the torques decide would err alike on every nominal, one draw counted thirty times.
+        let logs: Vec<_> = (0..nominals).map(|i| harness.log(arm, 1 + i, seconds, "held", kind, 1000.0)).collect();
+        let first = logs.first().context("--nominals: at least one")?;
+        let truth = read_log(first, Some((&truth_text, "true.urdf")), &fixed)?;
         let prior = CoordinatePrior::of(&truth.model, spread)?;
         let options = Options {
             spread,
@@ -82,14 +85,11 @@ fn arm_coverage(
         };
         let mut zs = Zs::new();
         let mut failed = 0;
-        for i in 0..nominals {
+        for (i, log) in (0..nominals).zip(&logs) {
             let mut rng = Rng::stream(7, &[i]);
             let nominal = prior.draw(&truth.model, || rng.normal())?;
             let (text, _) = dynforge_robot::urdf::patch_welded(&truth.document, &truth.source, &nominal, &truth.welds)?;
-            // A log of its own per nominal (another motion, another noise draw): with one log for all, the
-            // parameters the torques decide would err alike on every nominal, one draw counted thirty times.
-            let log = harness.log(arm, 1 + i, seconds, "held", kind, 1000.0);
-            match identify_logs(std::slice::from_ref(&log), Some((&text, "nominal.urdf")), &options) {
+            match identify_logs(std::slice::from_ref(log), Some((&text, "nominal.urdf")), &options) {
                 Ok((id, _)) => {
                     let mut at_truth = id.clone();
                     at_truth.report_values_of(&truth.model);

@@ -268,10 +268,10 @@ const CONTINUATION_STEP: f64 = 10.0;
 /// full weight from a description tens of percent off, Levenberg-Marquardt crawls along it and stops at its iteration
 /// limit with torques left unexplained, and the Laplace spreads of such a point are far too narrow (a generated UR5
 /// from four logs: 2e-4 of the torque unexplained, an inertia written at 0.133 against 0.303 with a spread of 9e-5;
-/// seven of ten such variants stopped so). The search starts instead with the data weighed as much as the prior (their costs at
-/// `start` equal) and multiplies the weight by [`CONTINUATION_STEP`] per stage up to the whole: each stage's optimum
-/// is close to the next's, the MAP's path from the prior to the data is followed, and a few hundred iterations in all
-/// reach the optimum that the search at full weight does not reach in thousands.
+/// seven of ten such variants stopped so). The search starts instead with the data weighed as much as the prior
+/// (their costs at `start` equal) and multiplies the weight by [`CONTINUATION_STEP`] per stage up to the whole: each
+/// stage's optimum is close to the next's, the MAP's path from the prior to the data is followed, and a few hundred
+/// iterations in all reach the optimum that the search at full weight does not reach in thousands.
 pub fn solve(
     ne: &NormalEquations,
     weights: &[f64],
