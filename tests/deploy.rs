@@ -59,12 +59,12 @@ fn ok(cmd: &mut Command) -> String {
     String::from_utf8_lossy(&out.stdout).to_string()
 }
 
-/// Installs Debian packages through the project's installer (one apt at a time) unless `binary` is on PATH.
-fn install(binary: &str, packages: &[&str]) {
-    if run(Command::new("sh").args(["-c", &format!("command -v {binary}")])).status.success() {
-        return;
-    }
-    ok(Command::new(repo().join("deploy/apt-install.sh")).args(packages));
+/// Installs Debian packages through the project's installer (one apt at a time), which returns at once when dpkg
+/// has them installed. Always through it, even when their commands are on PATH: on a fresh machine another test may
+/// be unpacking that very package, and the installer's lock waits for it to finish.
+fn install(packages: &[&str]) {
+    let out = run(Command::new(repo().join("deploy/apt-install.sh")).args(packages));
+    assert!(out.status.success(), "installing {packages:?} failed:\n{}", said(&out));
 }
 
 fn ledger_set(dir: &Path) -> BTreeSet<String> {
@@ -108,9 +108,7 @@ struct Sandbox {
 
 impl Sandbox {
     fn start() -> Sandbox {
-        install("slurmctld", &["slurm-wlm", "munge"]);
-        install("munged", &["slurm-wlm", "munge"]);
-        install("ip", &["iproute2"]);
+        install(&["slurm-wlm", "munge", "iproute2"]);
         let dir = tempfile::tempdir().unwrap();
         let ready = dir.path().join("ready");
         let log = std::fs::File::create(dir.path().join("sandbox.log")).unwrap();
@@ -469,7 +467,10 @@ fn local_cluster_sh_takes_over_nothing_it_did_not_set_up_and_stops_exactly_what_
 /// The host's Slurm as the tests must leave it: its slurm.conf and its daemons' pids.
 fn host_slurm() -> (Option<Vec<u8>>, String) {
     let conf = std::fs::read("/etc/slurm/slurm.conf").ok();
-    let pids = run(Command::new("sh").args(["-c", "pgrep -x 'munged|slurmctld|slurmd' || true"]));
+    // The host's own daemons only: the other Slurm tests' sandboxes run theirs in PID namespaces of their own,
+    // which the host's /proc lists too (they come and go while this test runs).
+    let own = format!("pgrep --ns {} --nslist pid -x 'munged|slurmctld|slurmd' || true", std::process::id());
+    let pids = run(Command::new("sh").args(["-c", &own]));
     (conf, String::from_utf8_lossy(&pids.stdout).to_string())
 }
 
@@ -715,15 +716,21 @@ struct Container(String);
 
 impl Container {
     fn name(n: &str) -> Container {
-        let name = format!("dynforge-test-{n}-{}", std::process::id());
-        let _ = run(podman().args(["rm", "-f", "-t", "0", &name]));
-        Container(name)
+        let c = Container(format!("dynforge-test-{n}-{}", std::process::id()));
+        c.remove();
+        c
+    }
+
+    /// Removes the container if it exists. Without podman (not installed yet: the image's build installs it)
+    /// there is none to remove.
+    fn remove(&self) {
+        let _ = podman().args(["rm", "-f", "-t", "0", &self.0]).stdin(Stdio::null()).output();
     }
 }
 
 impl Drop for Container {
     fn drop(&mut self) {
-        let _ = run(podman().args(["rm", "-f", "-t", "0", &self.0]));
+        self.remove();
     }
 }
 
@@ -909,7 +916,7 @@ struct Dockerd {
 
 impl Dockerd {
     fn start() -> Dockerd {
-        install("dockerd", &["docker.io"]);
+        install(&["docker.io"]);
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path().to_path_buf();
         let log = std::fs::File::create(d.join("dockerd.log")).unwrap();
@@ -974,6 +981,7 @@ fn build_sh_builds_the_image_with_docker() {
             "--binary",
             EXE,
             "--offline-base",
+            "--install",
             "--tag",
             "dynforge:docker-test",
         ]))

@@ -6,7 +6,8 @@
 # (default: podman when installed, else docker). --offline-base makes the Debian base with debootstrap from the Debian
 # mirror instead of pulling it from a container registry (for machines that reach Debian but no registry), without
 # apt's downloaded archives and lists; it is cached as image dynforge-base:bookworm-min (localhost/... in podman).
-# --install apt-installs podman, runc and debootstrap when missing (root). With podman, the OCI runtime is runc when
+# --install apt-installs what the build needs when missing (root): podman and runc unless --engine docker, and
+# debootstrap with --offline-base. With podman, the OCI runtime is runc when
 # present (DYNFORGE_OCI_RUNTIME overrides): crun cannot set rlimits in some VMs; and the build's rlimits are given
 # (nofile: the host's hard limit; nproc 4096): podman's defaults exceed a low hard limit, which runc then refuses.
 # Prints the tag.
@@ -35,10 +36,18 @@ case "$engine_name" in
 "" | podman | docker) ;;
 *) die "--engine must be podman or docker, not '$engine_name'" ;;
 esac
-if [ "$install" = 1 ] && [ "$engine_name" != docker ] &&
-    ! { command -v podman && command -v runc && command -v debootstrap; } >/dev/null; then
-    [ "$(id -u)" = 0 ] || die "--install needs root" 77
-    "$root/deploy/apt-install.sh" podman runc debootstrap
+if [ "$install" = 1 ]; then
+    # What this build needs: podman and runc unless docker is named, debootstrap for an offline base.
+    wanted=()
+    [ "$engine_name" = docker ] || wanted+=(podman runc)
+    [ "$offline" = 0 ] || wanted+=(debootstrap)
+    if [ "$(id -u)" = 0 ]; then
+        # Through the installer even when the commands are on PATH: it waits for another installer that may be
+        # unpacking them right now, and returns at once when dpkg has them installed.
+        [ ${#wanted[@]} = 0 ] || "$root/deploy/apt-install.sh" "${wanted[@]}"
+    else
+        for p in "${wanted[@]}"; do command -v "$p" >/dev/null || die "--install needs root to install $p" 77; done
+    fi
 fi
 if [ -z "$engine_name" ]; then
     if command -v podman >/dev/null; then engine_name=podman; elif command -v docker >/dev/null; then engine_name=docker; fi
