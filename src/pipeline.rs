@@ -51,7 +51,6 @@ pub fn run(args: PipelineArgs) -> Result<()> {
         Session { data: &data, out: &model, resume: resumable(&model), follow: false, recipe: &recipe, stop: &STOP };
     let trained = session.run(&mut Bars::new(recipe.train.batch))?;
     eprintln!("== 3/3 evaluate on the validation robots");
-    let checks = (crate::evaluate::TORQUE_RECORDINGS, crate::evaluate::IDENTIFY_ROBOTS);
-    crate::evaluate::evaluate(&model, &data, Some(trained.inputs), checks)?;
+    crate::evaluate::evaluate(&model, &data, Some(trained.inputs), crate::evaluate::CHECKS)?;
     Ok(())
 }

@@ -369,6 +369,44 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         }
     }
 
+    // The calibration `evaluate` measures on validation robots (too few here: none). With one, the estimator's
+    // spread is the evidence's own for this robot, scaled (a simulated log: its posterior assumed the noise floor)
+    // with the floor in quadrature; the refined spread the posterior likewise; each at the calibration for this many
+    // logs (one: the one-log calibrations).
+    assert!(report["spread_calibration"].is_null(), "measured on {} robots", report["robots"]["count"]);
+    let estimator_floors: Vec<f64> = (0..38).map(|k| 1e-3 * (1 + k) as f64).collect();
+    let calibration = |scale: f64, floor: &[f64]| serde_json::json!({"scale": vec![scale; 38], "floor": floor});
+    let with_calibration = |refined: &[f64]| -> serde_json::Value {
+        let mut fitted = report.clone();
+        let at = |logs: usize, estimator: serde_json::Value, refined: serde_json::Value| serde_json::json!({"logs": logs, "robots": 9, "estimator": estimator, "refined": refined, "coverage": []});
+        fitted["spread_calibration"] = serde_json::json!({"robots": 9, "counts": [
+            at(1, calibration(0.5, &estimator_floors), calibration(1.0, refined)),
+            at(4, calibration(1.0, &[1.0; 38]), calibration(1.0, &[1.0; 38])),
+        ]});
+        std::fs::write(run.join("report.json"), serde_json::to_vec(&fitted).unwrap()).unwrap();
+        let out = ok(dynforge(&[
+            "estimate",
+            "--checkpoint",
+            run.to_str().unwrap(),
+            validation_shard.to_str().unwrap(),
+            "--json",
+        ]));
+        serde_json::from_str(&out).unwrap()
+    };
+    let refined_floors: Vec<f64> = (0..38).map(|k| 1e-4 * (1 + k) as f64).collect();
+    let (bare, widened) = (with_calibration(&[0.0; 38]), with_calibration(&refined_floors));
+    assert_eq!(widened["refinement"]["calibration_robots"], 9);
+    for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
+        let (before, after) = (&bare["parameters"][l.name], &widened["parameters"][l.name]);
+        let evidence = before["evidence_spread"].as_f64().unwrap();
+        let estimator = before["estimator_spread"].as_f64().unwrap();
+        assert_eq!(estimator, (0.5 * evidence).hypot(estimator_floors[k]), "{}: {before}", l.name);
+        assert_eq!(before["value"], after["value"], "{}: the refinement's floor changes no value", l.name);
+        let want = before["spread"].as_f64().unwrap().hypot(refined_floors[k]);
+        assert!((after["spread"].as_f64().unwrap() - want).abs() <= 1e-12 * want, "{}: {after} vs {want}", l.name);
+    }
+    std::fs::write(run.join("report.json"), serde_json::to_vec(&report).unwrap()).unwrap();
+
     // A robot of another family is refused with the way out: the same joint names, one joint placed 5 cm off.
     let rec = dynforge_recording::read(&validation_shard, None).unwrap();
     let mut joints = rec.model.joints().to_vec();

@@ -4,7 +4,10 @@
 //! of `report.json` for this many logs) and refined by the log's torques (the posterior spread, what `estimate`
 //! prints), from one log and from all of a robot's logs.
 //!
-//! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N]
+//! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N] [--dump FILE.tsv]
+//!
+//! `--dump` writes every label of every robot under both protocols: truth, the estimator's value and spread, the
+//! refined value and standard deviation, the family's spread, the evidence's own spread (NaN for the transformer).
 
 use anyhow::{Context, Result, bail};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
@@ -15,18 +18,38 @@ use std::collections::BTreeMap;
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
-/// Each label's `z` for one robot under one protocol: the estimator's and the refined one.
+/// Each label's `z` for one robot under one protocol: the estimator's and the refined one, and the rows of `--dump`.
 struct Zs {
     estimator: [f64; NUM_LABELS],
     refined: [f64; NUM_LABELS],
+    rows: String,
 }
 
-fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS]) -> Result<Zs> {
+fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], robot: u64) -> Result<Zs> {
     let e = predictor.estimate(recs)?;
     let r = predictor.refine(recs, &e)?;
+    let rows = LABELS
+        .iter()
+        .enumerate()
+        .map(|(k, l)| {
+            format!(
+                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
+                recs.len(),
+                l.name,
+                truth[k],
+                e.labels[k],
+                e.spread[k],
+                r.labels[k],
+                r.std[k],
+                e.family[k],
+                e.posterior.map_or(f64::NAN, |p| p[k])
+            )
+        })
+        .collect();
     Ok(Zs {
         estimator: std::array::from_fn(|k| (e.labels[k] - truth[k]) / e.spread[k]),
         refined: std::array::from_fn(|k| (r.labels[k] - truth[k]) / r.std[k]),
+        rows,
     })
 }
 
@@ -64,10 +87,11 @@ fn table(name: &str, per_robot: &[[f64; NUM_LABELS]]) {
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
-    let (mut positional, mut robots) = (Vec::new(), usize::MAX);
+    let (mut positional, mut robots, mut dump) = (Vec::new(), usize::MAX, None);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--robots" => robots = args.next().context("--robots needs a value")?.parse()?,
+            "--dump" => dump = Some(args.next().context("--dump needs a file")?),
             _ if a.starts_with("--") => bail!("unknown option {a}"),
             _ => positional.push(a),
         }
@@ -81,7 +105,7 @@ fn main() -> Result<()> {
         let recs: Vec<Recording> = paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
         let truth = recs[0].labels.with_context(|| format!("robot {robot}: no labels"))?;
         let refs: Vec<&Recording> = recs.iter().collect();
-        Ok((zs(&predictor, &refs[..1], &truth)?, zs(&predictor, &refs, &truth)?, recs.len()))
+        Ok((zs(&predictor, &refs[..1], &truth, *robot)?, zs(&predictor, &refs, &truth, *robot)?, recs.len()))
     });
     let (mut rows, mut failed) = (Vec::new(), 0);
     for r in results {
@@ -92,6 +116,16 @@ fn main() -> Result<()> {
                 eprintln!("skipped: {e:#}");
             }
         }
+    }
+    if let Some(file) = &dump {
+        let mut text = String::from(
+            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\n",
+        );
+        for r in &rows {
+            text.push_str(&r.0.rows);
+            text.push_str(&r.1.rows);
+        }
+        std::fs::write(file, text).with_context(|| format!("writing {file}"))?;
     }
     let logs = rows.first().map_or(0, |r| r.2);
     println!("{} robots ({failed} skipped), {logs} logs each; z = (value - truth) / spread\n", rows.len());

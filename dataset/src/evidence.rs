@@ -9,7 +9,9 @@
 
 use std::path::Path;
 
-use dynforge_identify::{Evidence, IdentifyError, LatentSums, ParameterPrior, labels_of_parameters, latent_blocks};
+use dynforge_identify::{
+    Evidence, IdentifyError, LatentSums, ParameterPrior, Posterior, labels_of_parameters, latent_blocks,
+};
 use dynforge_proto::NUM_LABELS;
 use dynforge_proto::content_hash;
 use dynforge_recording::dataset::generator;
@@ -180,6 +182,28 @@ pub fn features(
     label_std: &[f64; NUM_LABELS],
 ) -> Result<Vec<f32>, IdentifyError> {
     let post = e.posterior()?;
+    let (plug_in, spread_si) = label_posterior(prior, &post);
+    let spread: [f64; NUM_LABELS] = std::array::from_fn(|k| {
+        let s = spread_si[k] / label_std[k];
+        if s.is_finite() { s.min(SPREAD_CLIP) } else { SPREAD_CLIP }
+    });
+    let r = prior.rank();
+    let mut out = Vec::with_capacity(feature_width(r));
+    out.extend(post.mean.iter().map(|&v| v as f32));
+    out.extend(post.variance.iter().map(|&v| v.max(1e-30).ln() as f32));
+    out.extend(post.correlation.iter().map(|&c| c as f32));
+    out.extend(spread.iter().map(|&v| v as f32));
+    out.extend((0..NUM_LABELS).map(|k| {
+        let z = (plug_in[k] - label_mean[k]) / label_std[k];
+        (if z.is_finite() { z.clamp(-CLIP, CLIP) } else { 0.0 }) as f32
+    }));
+    Ok(out)
+}
+
+/// What a posterior over the prior coordinates says of each label [SI], robot by robot: its value at the posterior
+/// mean (the plug-in estimate) and its standard deviation by the delta method through the posterior covariance (not
+/// finite where a link's mass is near zero).
+pub fn label_posterior(prior: &ParameterPrior, post: &Posterior) -> ([f64; NUM_LABELS], [f64; NUM_LABELS]) {
     let r = prior.rank();
     let at = |z: &[f64]| labels_of_parameters(&prior.parameters(z));
     let plug_in = at(&post.mean);
@@ -201,24 +225,14 @@ pub fn features(
         std::cmp::Ordering::Less => post.correlation[i * r - i * (i + 1) / 2 + j - i - 1] * sd(i) * sd(j),
         std::cmp::Ordering::Greater => post.correlation[j * r - j * (j + 1) / 2 + i - j - 1] * sd(i) * sd(j),
     };
-    let spread: [f64; NUM_LABELS] = std::array::from_fn(|k| {
+    let spread = std::array::from_fn(|k| {
         let mut v = 0.0;
         for i in 0..r {
             for j in 0..r {
                 v += grad[i][k] * cov(i, j) * grad[j][k];
             }
         }
-        let s = v.max(0.0).sqrt() / label_std[k];
-        if s.is_finite() { s.min(SPREAD_CLIP) } else { SPREAD_CLIP }
+        v.max(0.0).sqrt()
     });
-    let mut out = Vec::with_capacity(feature_width(r));
-    out.extend(post.mean.iter().map(|&v| v as f32));
-    out.extend(post.variance.iter().map(|&v| v.max(1e-30).ln() as f32));
-    out.extend(post.correlation.iter().map(|&c| c as f32));
-    out.extend(spread.iter().map(|&v| v as f32));
-    out.extend((0..NUM_LABELS).map(|k| {
-        let z = (plug_in[k] - label_mean[k]) / label_std[k];
-        (if z.is_finite() { z.clamp(-CLIP, CLIP) } else { 0.0 }) as f32
-    }));
-    Ok(out)
+    (plug_in, spread)
 }

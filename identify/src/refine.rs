@@ -51,6 +51,9 @@ pub struct Refined {
     pub std: [f64; NUM_LABELS],
     /// Gauss-Newton iterations taken.
     pub iterations: usize,
+    /// Whether the torque noise assumed was [`NOISE_FLOOR`] rather than the residual's (a simulated log's: the
+    /// posterior is then as wide as the floor, not as the data).
+    pub at_floor: bool,
 }
 
 /// Maximum a posteriori labels: minimises `|Y pi(y) - tau|^2 / sigma^2 + sum_k ((y_k - mean_k) / std_k)^2` by
@@ -62,7 +65,9 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
         return Err(IdentifyError::NoData);
     }
     let (a, b, c) = ne.gram();
-    let sigma = sigma.max(NOISE_FLOOR * (c / ne.rows() as f64).sqrt());
+    let floor = NOISE_FLOOR * (c / ne.rows() as f64).sqrt();
+    let at_floor = sigma <= floor;
+    let sigma = sigma.max(floor);
     let w = 1.0 / (sigma * sigma);
     // Work in prior-standardised coordinates z = (y - mean) / std: the prior term is |z|^2 and H >= I.
     let labels =
@@ -118,5 +123,5 @@ pub fn refine(ne: &NormalEquations, template: &Model, prior: &Prior, sigma: f64)
         let var: f64 = (0..NUM_LABELS).map(|e| vectors[(k, e)].powi(2) / values[e].max(1.0)).sum();
         prior.std[k] * var.sqrt()
     });
-    Ok(Refined { labels: labels(&z), std, iterations })
+    Ok(Refined { labels: labels(&z), std, iterations, at_floor })
 }

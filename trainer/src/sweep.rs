@@ -13,6 +13,7 @@ use crate::model::NetworkConfig;
 use crate::training::recipe::Recipe;
 use crate::training::resumable;
 use crate::training::session::{Session, SessionError, SessionObserver};
+use dynforge_dataset::evaluation::Checks;
 use dynforge_dataset::evaluation::sweep::{ARCHITECTURE_GRID, DATASET_GRID, Grid, Row, tables};
 use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::window::WindowSpec;
@@ -111,7 +112,7 @@ impl Sweep<'_> {
             Session { data: self.data, out: &out, resume: resumable(&out), follow: false, recipe, stop: self.stop };
         let trained = session.run(observer)?;
         let train_seconds = started.elapsed().as_secs_f64();
-        let report = evaluate_checkpoint(&out, self.data, Some(trained.inputs), 0, 0, |_, _, _| {})
+        let report = evaluate_checkpoint(&out, self.data, Some(trained.inputs), Checks::NONE, |_, _, _| {})
             .map_err(|e| SessionError::Setup(e.to_string()))?;
         dynforge_dataset::evaluation::write(&out, &report).map_err(|e| self.io(e))?;
         let c = Checkpoint::read(&out)?;

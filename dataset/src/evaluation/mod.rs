@@ -6,6 +6,7 @@
 
 pub mod identification;
 pub mod recording;
+pub mod spread;
 pub mod sweep;
 pub mod tables;
 pub mod torque;
@@ -25,7 +26,18 @@ use crate::split::{HoldOut, SplitRule};
 use crate::window::WindowSpec;
 use identification::IdentificationCheck;
 use recording::{RecordingError, normal_equations, physical_parameters};
+use spread::SpreadCalibration;
 use torque::TorqueRow;
+
+/// An estimate of one robot, with what its evidence says of its spread.
+#[derive(Debug, Clone)]
+pub struct Estimated {
+    pub labels: Labels,
+    /// The standard deviation per label [SI] the evidence implies (`None`: the estimator reads no evidence).
+    pub posterior: Option<Labels>,
+    /// Whether that posterior assumed the noise floor on every joint (a simulated log) rather than measured noise.
+    pub at_floor: bool,
+}
 
 /// An estimator's own failure, as it reports it.
 pub type EstimatorError = Box<dyn std::error::Error + Send + Sync>;
@@ -40,6 +52,12 @@ pub trait Estimator: Sync {
     fn label_statistics(&self) -> ([f64; NUM_LABELS], [f64; NUM_LABELS]);
     /// Its labels [SI] for one robot, from that robot's recordings.
     fn estimate(&self, recordings: &[&Recording]) -> Result<[f64; NUM_LABELS], EstimatorError>;
+
+    /// [`Estimator::estimate`] with the standard deviation per label [SI] its evidence implies for this robot, when
+    /// it reads one (the physics estimator: the posterior of the prior coordinates), before what the network adds.
+    fn estimate_with_spread(&self, recordings: &[&Recording]) -> Result<Estimated, EstimatorError> {
+        Ok(Estimated { labels: self.estimate(recordings)?, posterior: None, at_floor: false })
+    }
 
     /// Whether `robot` was held out of its training whole (never under a split by trajectory or window).
     fn holds_out_robot(&self, robot: u64) -> bool {
@@ -90,6 +108,10 @@ pub struct Report {
     pub logs_per_robot: f64,
     pub torque: Option<TorqueCheck>,
     pub identification: Option<IdentificationCheck>,
+    /// How the spreads `estimate` prints are calibrated to hold (`None` when not measured: too few validation robots,
+    /// or not asked for).
+    #[serde(default)]
+    pub spread_calibration: Option<SpreadCalibration>,
 }
 
 impl Report {
@@ -129,6 +151,9 @@ impl Report {
         if let Some(i) = &self.identification {
             out.push_str(&i.markdown());
         }
+        if let Some(s) = &self.spread_calibration {
+            out.push_str(&s.markdown());
+        }
         if self.held_out != HoldOut::Robots {
             out.push_str(
                 "\nThe torque and identification checks run on robots never seen in training: none under this split.\n",
@@ -165,27 +190,40 @@ pub struct Validation {
 
 type Labels = [f64; NUM_LABELS];
 
+/// How much of the validation split each check beyond the scores takes (0: skip the check).
+#[derive(Debug, Clone, Copy)]
+pub struct Checks {
+    /// Validation shards whose torques the estimate predicts.
+    pub torque_recordings: usize,
+    /// Validation robots identified by physics from half their recordings.
+    pub identify_robots: usize,
+    /// Validation robots refined from one log and from all theirs, to fit the refined spreads' floors.
+    pub spread_robots: usize,
+}
+
+impl Checks {
+    /// The scores alone.
+    pub const NONE: Checks = Checks { torque_recordings: 0, identify_robots: 0, spread_robots: 0 };
+}
+
 /// The report of `estimator` (its checkpoint `name` at `epoch`) from its predictions on the validation split
-/// `v` of the dataset `data`: the scores of both protocols, the torque check on up to `torque_recordings`
-/// validation shards and the identification check on up to `identify_robots` validation robots.
-#[allow(clippy::too_many_arguments)]
+/// `v` of the dataset `data`: the scores of both protocols and the `checks`.
 pub fn report(
     estimator: &impl Estimator,
     (name, epoch): (&str, usize),
     v: &Validation,
     data: &Path,
-    torque_recordings: usize,
-    identify_robots: usize,
+    checks: Checks,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<Report, EvaluationError> {
     let (_, label_std) = estimator.label_statistics();
     let windows = score(&v.window_predicted, &v.window_truth, &label_std);
     let robots = score(&v.robot_predicted, &v.robot_truth, &label_std);
-    let torque = match torque_recordings {
+    let torque = match checks.torque_recordings {
         0 => None,
         n => torque_check(estimator, data, n, &mut progress)?,
     };
-    let identification = match identify_robots {
+    let identification = match checks.identify_robots {
         0 => None,
         n => {
             let errors: BTreeMap<u64, [f64; NUM_LABELS]> = v
@@ -202,6 +240,10 @@ pub fn report(
     };
     let recordings = v.recordings.as_ref().map(|(p, t)| score(p, t, &label_std));
     let logs_per_robot = v.recordings.as_ref().map_or(0.0, |(p, _)| p.len() as f64 / v.robot_ids.len().max(1) as f64);
+    let spread_calibration = match checks.spread_robots {
+        0 => None,
+        n => spread::fit(estimator, data, n, &mut progress)?,
+    };
     Ok(Report {
         checkpoint: name.to_string(),
         epoch,
@@ -213,6 +255,7 @@ pub fn report(
         logs_per_robot,
         torque,
         identification,
+        spread_calibration,
     })
 }
 

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use dynforge_dataset::cache::evidence::PhysicsSet;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::evaluation::{Estimator, EstimatorError, Report, Validation, per_robot_mean};
+use dynforge_dataset::evaluation::{Checks, Estimated, Estimator, EstimatorError, Report, Validation, per_robot_mean};
 use dynforge_dataset::examples::Examples;
 use dynforge_dataset::examples::corpus::Corpus;
 use dynforge_dataset::features::JacobianFeatures;
@@ -41,32 +41,27 @@ impl Estimator for Predictor {
     fn estimate(&self, recordings: &[&Recording]) -> Result<[f64; NUM_LABELS], EstimatorError> {
         Ok(Predictor::estimate(self, recordings)?.labels)
     }
+
+    fn estimate_with_spread(&self, recordings: &[&Recording]) -> Result<Estimated, EstimatorError> {
+        let e = Predictor::estimate(self, recordings)?;
+        Ok(Estimated { labels: e.labels, posterior: e.posterior, at_floor: e.at_floor() })
+    }
 }
 
 /// Evaluates the checkpoint in `dir` on the validation robots of its dataset `data` (its windows or physics in
-/// `inputs` when the caller has them), with the torque check on up to `torque_recordings` validation shards and
-/// the identification check on up to `identify_robots` validation robots; draws its figures into `dir`.
+/// `inputs` when the caller has them), with the `checks` beyond the scores; draws its figures into `dir`.
 pub fn evaluate_checkpoint(
     dir: &Path,
     data: &Path,
     inputs: Option<Inputs>,
-    torque_recordings: usize,
-    identify_robots: usize,
+    checks: Checks,
     mut progress: impl FnMut(&str, usize, usize),
 ) -> Result<Report, InferenceError> {
     let predictor = Predictor::load(dir)?;
     let v = validate(&predictor, data, inputs, &mut progress)?;
     plot(dir, &v, &predictor.checkpoint.standardizer())?;
     let name = (dir.display().to_string(), predictor.checkpoint.epoch);
-    let r = dynforge_dataset::evaluation::report(
-        &predictor,
-        (&name.0, name.1),
-        &v,
-        data,
-        torque_recordings,
-        identify_robots,
-        progress,
-    )?;
+    let r = dynforge_dataset::evaluation::report(&predictor, (&name.0, name.1), &v, data, checks, progress)?;
     Ok(r)
 }
 

@@ -7,7 +7,7 @@ mod report;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use dynforge_identify::{Evidence, ParameterPrior, Prior, least_squares, refine};
+use dynforge_identify::{Evidence, ParameterPrior};
 use dynforge_proto::NUM_LABELS;
 use dynforge_recording::{GRID_DT, ReadError, Recording, read};
 use dynforge_robot::Model;
@@ -15,8 +15,11 @@ use dynforge_robot::Model;
 use dynforge_dataset::cache::CacheError;
 use dynforge_dataset::cache::windows::CachedWindows;
 use dynforge_dataset::evaluation::EvaluationError;
-use dynforge_dataset::evaluation::recording::{RecordingError, normal_equations, physical_parameters, recording_error};
-use dynforge_dataset::evidence::{EvidenceError, features, measured_evidence};
+use dynforge_dataset::evaluation::recording::{RecordingError, physical_parameters};
+use dynforge_dataset::evaluation::spread::{
+    SpreadCalibration, between_log_counts, estimator_spread, refine_recordings,
+};
+use dynforge_dataset::evidence::{EvidenceError, NOISE_FLOOR, features, label_posterior, measured_evidence};
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::windows::{row_width, windows};
 
@@ -55,9 +58,10 @@ pub enum InferenceError {
 pub struct Estimate {
     /// The estimated labels [SI].
     pub labels: [f64; NUM_LABELS],
-    /// The estimator's error for an estimate from this many logs, per label [SI]: its validation RMSE (from the
-    /// `report.json` of `evaluate`), else the training labels' spread. A standard deviation that holds over the
-    /// validation robots, and the prior the refinement by the log's torques starts from.
+    /// The estimator's standard deviation per label [SI], and the prior the refinement by the log's torques starts
+    /// from. Where `evaluate` calibrated the spreads on validation robots (its `report.json`): the evidence's
+    /// posterior for this robot as calibrated for this many logs. Else its validation RMSE for this many logs, else
+    /// the training labels' spread.
     pub spread: [f64; NUM_LABELS],
     /// Whether `spread` came from an evaluation rather than the training labels.
     pub spread_from_validation: bool,
@@ -68,6 +72,21 @@ pub struct Estimate {
     /// Physics estimator: each joint's torque noise as an NRMSE, as the logs' residuals show it (the largest over
     /// the logs; the evidence is weighted by it). Empty for the transformer.
     pub noise: Vec<f64>,
+    /// Physics estimator: the standard deviation per label [SI] that the evidence alone implies for this robot.
+    pub posterior: Option<[f64; NUM_LABELS]>,
+}
+
+impl Estimate {
+    /// Whether the evidence assumed the noise floor on every joint (a simulated log's) rather than measured noise.
+    pub fn at_floor(&self) -> bool {
+        self.posterior.is_some() && at_noise_floor(&self.noise)
+    }
+}
+
+/// Whether every joint's torque noise (NRMSE) is the evidence's floor, as on a simulated log: its posterior is then
+/// as wide as the floor, not as the data.
+fn at_noise_floor(noise: &[f64]) -> bool {
+    noise.iter().all(|&n| n <= NOISE_FLOOR * (1.0 + 1e-6))
 }
 
 /// The evidence of a whole recording and each joint's torque noise (NRMSE) it was weighted by.
@@ -81,32 +100,52 @@ pub struct Refinement {
     pub std: [f64; NUM_LABELS],
     /// Identifiable parameter combinations in the recording.
     pub identifiable: usize,
+    /// Validation robots on which the spreads were calibrated (`None`: the posterior as it comes, when `evaluate`
+    /// calibrated none).
+    pub calibration_robots: Option<usize>,
     /// Torque NRMSE on the recording itself, of the network's estimate and of the refined labels (each as the
     /// physical robot the URDF gets).
     pub nrmse_network: f64,
     pub nrmse_refined: f64,
 }
 
-/// The estimator's validation RMSE per label [SI] for an estimate from `logs` logs of a robot, from the
-/// `report.json` that `evaluate` leaves in `dir`: the per-recording RMSE for one log, the per-robot RMSE for as many
-/// logs as a validation robot has, geometrically in between (errors of independent logs fall like a power of
-/// their number).
-fn validation_rmse(dir: &Path, logs: usize) -> Option<[f64; NUM_LABELS]> {
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
-    let rmse = |protocol: &str| -> Option<[f64; NUM_LABELS]> {
-        let targets = report.get(protocol)?.get("targets")?.as_array()?;
-        let values: Vec<f64> = targets.iter().filter_map(|t| t.get("rmse_si")?.as_f64()).collect();
-        let rmse: [f64; NUM_LABELS] = values.try_into().ok()?;
-        rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
-    };
-    let robot = rmse("robots")?;
-    let Some(one) = rmse("recordings") else { return Some(robot) };
-    let per_robot = report.get("logs_per_robot").and_then(|v| v.as_f64()).unwrap_or(1.0);
-    if per_robot <= 1.0 {
-        return Some(one);
+/// What `evaluate` measured of the estimator's errors on its validation robots (its `report.json`): the RMSE per
+/// label [SI] from one log and from all of a robot's (`per_robot` logs), and the spreads' calibration.
+#[derive(Debug, Clone)]
+struct Validated {
+    one: [f64; NUM_LABELS],
+    all: [f64; NUM_LABELS],
+    per_robot: f64,
+    calibration: Option<SpreadCalibration>,
+}
+
+impl Validated {
+    /// Reads `report.json` in `dir`; `None` when absent, unreadable, or with an RMSE that is not positive.
+    fn read(dir: &Path) -> Option<Validated> {
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).ok()?).ok()?;
+        let rmse = |protocol: &str| -> Option<[f64; NUM_LABELS]> {
+            let targets = report.get(protocol)?.get("targets")?.as_array()?;
+            let values: Vec<f64> = targets.iter().filter_map(|t| t.get("rmse_si")?.as_f64()).collect();
+            let rmse: [f64; NUM_LABELS] = values.try_into().ok()?;
+            rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
+        };
+        let all = rmse("robots")?;
+        let calibration = report.get("spread_calibration").and_then(|v| serde_json::from_value(v.clone()).ok());
+        Some(match rmse("recordings") {
+            Some(one) => Validated {
+                one,
+                all,
+                per_robot: report.get("logs_per_robot").and_then(|v| v.as_f64()).unwrap_or(1.0),
+                calibration,
+            },
+            None => Validated { one: all, all, per_robot: 1.0, calibration },
+        })
     }
-    let w = ((logs.max(1) as f64).ln() / per_robot.ln()).clamp(0.0, 1.0);
-    Some(std::array::from_fn(|k| one[k] * (robot[k] / one[k]).powf(w)))
+
+    /// The estimator's error per label for an estimate from `logs` logs.
+    fn rmse(&self, logs: usize) -> [f64; NUM_LABELS] {
+        between_log_counts(&self.one, &self.all, self.per_robot, logs)
+    }
 }
 
 /// A loaded checkpoint, ready to estimate recordings.
@@ -116,6 +155,7 @@ pub struct Predictor {
     pub checkpoint: Checkpoint,
     model: Network,
     prior: Option<ParameterPrior>,
+    validated: Option<Validated>,
     device: Device,
 }
 
@@ -124,7 +164,8 @@ impl Predictor {
         let device = Device::default();
         let (checkpoint, model) = Checkpoint::load(dir, &device)?;
         let prior = checkpoint.parameter_prior();
-        Ok(Predictor { dir: dir.to_path_buf(), checkpoint, model, prior, device })
+        let validated = Validated::read(dir);
+        Ok(Predictor { dir: dir.to_path_buf(), checkpoint, model, prior, validated, device })
     }
 
     /// The network (evaluation mode).
@@ -226,19 +267,35 @@ impl Predictor {
         }
         let n = per_window.len() as f64;
         let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
-        let labels = match whole {
-            Some(e) => self.predict_evidence(&[e])?[0],
-            None => mean,
+        let family: [f64; NUM_LABELS] = std::array::from_fn(|k| self.checkpoint.label_std[k]);
+        let (labels, posterior) = match (whole, &self.prior) {
+            (Some(e), Some(prior)) => {
+                let post = e.posterior().map_err(|err| RecordingError {
+                    file: recs.first().map_or(String::new(), |r| r.path.display().to_string()),
+                    problem: err.to_string(),
+                })?;
+                // Where the delta method has no answer (a link mass near zero) the family's spread stands.
+                let (_, spread) = label_posterior(prior, &post);
+                let spread = std::array::from_fn(|k| if spread[k].is_finite() { spread[k] } else { family[k] });
+                (self.predict_evidence(&[e])?[0], Some(spread))
+            }
+            _ => (mean, None),
         };
-        let validated = validation_rmse(&self.dir, recs.len());
-        let family = std::array::from_fn(|k| self.checkpoint.label_std[k]);
+        let least: [f64; NUM_LABELS] = std::array::from_fn(|k| 1e-6 * family[k]);
+        let at_floor = posterior.is_some() && at_noise_floor(&noise);
+        // A calibration's scale narrows only a posterior at the floor: a real log's measured noise is kept.
+        let spread = self.validated.as_ref().map(|v| match &v.calibration {
+            Some(c) => estimator_spread(posterior.as_ref(), at_floor, &c.at(recs.len()).0, &least),
+            None => v.rmse(recs.len()),
+        });
         Ok(Estimate {
             labels,
-            spread: validated.unwrap_or(family),
-            spread_from_validation: validated.is_some(),
+            spread: spread.unwrap_or(family),
+            spread_from_validation: spread.is_some(),
             family,
             windows: per_window.len(),
             noise,
+            posterior,
         })
     }
 
@@ -246,21 +303,22 @@ impl Predictor {
     /// torques (least squares on the regressor) with the estimate as prior, its spread as the prior's.
     pub fn refine(&self, recs: &[&Recording], e: &Estimate) -> Result<Refinement, InferenceError> {
         let p = recs.first().ok_or(InferenceError::NoRecording)?;
-        let mut ne = normal_equations(p)?;
-        for other in &recs[1..] {
-            ne.merge(&normal_equations(other)?);
-        }
-        let ls = least_squares(&ne).map_err(|err| recording_error(p, err))?;
-        let prior = Prior::new(e.labels, &e.spread).map_err(|err| recording_error(p, err))?;
-        let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|err| recording_error(p, err))?;
+        let r = refine_recordings(recs, &e.labels, &e.spread)?;
+        // The posterior as the validation robots calibrated it (`dynforge_dataset::evaluation::spread`).
+        let calibration = self.validated.as_ref().and_then(|v| v.calibration.as_ref());
+        let std = match calibration.map(|c| c.at(recs.len()).1) {
+            Some(c) => std::array::from_fn(|k| c.apply(k, r.refined.std[k], r.refined.at_floor)),
+            None => r.refined.std,
+        };
         // Scored as the written URDF will be: projected to a physical robot.
-        let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| ne.mean_nrmse(&pi));
+        let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| r.ne.mean_nrmse(&pi));
         Ok(Refinement {
-            labels: refined.labels,
-            std: refined.std,
-            identifiable: ls.rank,
+            labels: r.refined.labels,
+            std,
+            identifiable: r.least_squares.rank,
+            calibration_robots: calibration.map(|c| c.robots),
             nrmse_network: nrmse(&e.labels)?,
-            nrmse_refined: nrmse(&refined.labels)?,
+            nrmse_refined: nrmse(&r.refined.labels)?,
         })
     }
 

@@ -110,14 +110,15 @@ impl EstimateReport {
                 let decided = if self.from_log(k) { "log" } else { "family" };
                 let v = serde_json::json!({
                     "value": self.values[k], "estimator": e.labels[k], "spread": self.spread()[k],
-                    "estimator_spread": e.spread[k], "decided": decided, "unit": l.kind.unit()
+                    "estimator_spread": e.spread[k], "evidence_spread": e.posterior.map(|p| p[k]),
+                    "decided": decided, "unit": l.kind.unit()
                 });
                 (l.name.to_string(), v)
             })
             .collect();
         let refined = self.refinement.as_ref().map(|r| {
             serde_json::json!({
-                "identifiable": r.identifiable,
+                "identifiable": r.identifiable, "calibration_robots": r.calibration_robots,
                 "torque_nrmse_estimator": r.nrmse_network, "torque_nrmse_refined": r.nrmse_refined,
             })
         });
@@ -154,12 +155,18 @@ impl std::fmt::Display for EstimateReport {
         }
         let source = if e.spread_from_validation { "the checkpoint's report.json" } else { "the training labels" };
         match (&self.refinement, &self.warning) {
-            (Some(r), _) => writeln!(
-                f,
-                "refined by physics ({} identifiable parameter combinations; the estimator's spread from {source}): \
-                 torque NRMSE on this log {:.4} (estimator alone {:.4})",
-                r.identifiable, r.nrmse_refined, r.nrmse_network
-            )?,
+            (Some(r), _) => {
+                let widened = match r.calibration_robots {
+                    Some(n) => format!("; spreads calibrated on {n} validation robots"),
+                    None => String::new(),
+                };
+                writeln!(
+                    f,
+                    "refined by physics ({} identifiable parameter combinations; the estimator's spread from \
+                     {source}{widened}): torque NRMSE on this log {:.4} (estimator alone {:.4})",
+                    r.identifiable, r.nrmse_refined, r.nrmse_network
+                )?
+            }
             (None, Some(_)) => writeln!(f, "estimator output only (not refined: see the warning above)")?,
             (None, None) => writeln!(f, "estimator output only (--no-refine)")?,
         }
