@@ -371,8 +371,9 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
 
     // The calibration `evaluate` measures on validation robots (too few here: none). With one, the estimator's
     // spread is the evidence's own for this robot, scaled (a simulated log: its posterior assumed the noise floor)
-    // with the floor in quadrature; the refined spread the posterior likewise; each at the calibration for this many
-    // logs (one: the one-log calibrations).
+    // with the floor in quadrature; the refined spread the refinement's posterior likewise, never under the
+    // estimator's (whose evidence was the same torques); each at the calibration for this many logs (one: the
+    // one-log calibrations).
     assert!(report["spread_calibration"].is_null(), "measured on {} robots", report["robots"]["count"]);
     let estimator_floors: Vec<f64> = (0..38).map(|k| 1e-3 * (1 + k) as f64).collect();
     let calibration = |scale: f64, floor: &[f64]| serde_json::json!({"scale": vec![scale; 38], "floor": floor});
@@ -402,8 +403,12 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         let estimator = before["estimator_spread"].as_f64().unwrap();
         assert_eq!(estimator, (0.5 * evidence).hypot(estimator_floors[k]), "{}: {before}", l.name);
         assert_eq!(before["value"], after["value"], "{}: the refinement's floor changes no value", l.name);
-        let want = before["spread"].as_f64().unwrap().hypot(refined_floors[k]);
-        assert!((after["spread"].as_f64().unwrap() - want).abs() <= 1e-12 * want, "{}: {after} vs {want}", l.name);
+        let posterior = before["refined_posterior"].as_f64().unwrap();
+        assert_eq!(after["refined_posterior"].as_f64().unwrap(), posterior, "{}", l.name);
+        for (v, floor) in [(before, 0.0), (after, refined_floors[k])] {
+            let want = posterior.hypot(floor).max(estimator);
+            assert_eq!(v["spread"].as_f64().unwrap(), want, "{}: {v}", l.name);
+        }
     }
     std::fs::write(run.join("report.json"), serde_json::to_vec(&report).unwrap()).unwrap();
 

@@ -4,10 +4,12 @@
 //! of `report.json` for this many logs) and refined by the log's torques (the posterior spread, what `estimate`
 //! prints), from one log and from all of a robot's logs.
 //!
-//! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N] [--dump FILE.tsv]
+//! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N] [--dump FILE.tsv] [--noise LEVEL]
 //!
 //! `--dump` writes every label of every robot under both protocols: truth, the estimator's value and spread, the
 //! refined value and standard deviation, the family's spread, the evidence's own spread (NaN for the transformer).
+//! `--noise` adds white noise of that fraction of each joint's torque RMS to every recorded torque (a real robot's
+//! effort sensing; the logs' noise is then measured above the floor, and the calibration's scale does not apply).
 
 use anyhow::{Context, Result, bail};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
@@ -53,6 +55,22 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
     })
 }
 
+/// White noise of `level` times each joint's torque RMS on every recorded torque (`level` 0: none), as a real
+/// robot's effort sensing adds.
+fn add_effort_noise(rec: &mut Recording, level: f64, mut rng: dynforge_robot::rng::Rng) {
+    let tau = &mut rec.trajectory.tau;
+    let n = rec.trajectory.names.len();
+    if level <= 0.0 || n == 0 {
+        return;
+    }
+    let samples = (tau.len() / n).max(1) as f64;
+    let rms: Vec<f64> =
+        (0..n).map(|j| (tau.iter().skip(j).step_by(n).map(|t| t * t).sum::<f64>() / samples).sqrt()).collect();
+    for (i, t) in tau.iter_mut().enumerate() {
+        *t += level * rms[i % n] * rng.normal();
+    }
+}
+
 /// The label kinds as the table groups them.
 fn group(kind: LabelKind) -> &'static str {
     match kind {
@@ -87,11 +105,12 @@ fn table(name: &str, per_robot: &[[f64; NUM_LABELS]]) {
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
-    let (mut positional, mut robots, mut dump) = (Vec::new(), usize::MAX, None);
+    let (mut positional, mut robots, mut dump, mut noise) = (Vec::new(), usize::MAX, None, 0.0);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--robots" => robots = args.next().context("--robots needs a value")?.parse()?,
             "--dump" => dump = Some(args.next().context("--dump needs a file")?),
+            "--noise" => noise = args.next().context("--noise needs a level")?.parse()?,
             _ if a.starts_with("--") => bail!("unknown option {a}"),
             _ => positional.push(a),
         }
@@ -102,7 +121,11 @@ fn main() -> Result<()> {
     let chosen: Vec<(u64, Vec<std::path::PathBuf>)> = by_robot.into_iter().take(robots).collect();
     eprintln!("{} robots of {data}", chosen.len());
     let results = dynforge_proto::parallel::map_in_order(&chosen, |(robot, paths)| -> Result<(Zs, Zs, usize)> {
-        let recs: Vec<Recording> = paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
+        let mut recs: Vec<Recording> =
+            paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
+        for (t, rec) in recs.iter_mut().enumerate() {
+            add_effort_noise(rec, noise, dynforge_robot::rng::Rng::stream(*robot, &[t as u64]));
+        }
         let truth = recs[0].labels.with_context(|| format!("robot {robot}: no labels"))?;
         let refs: Vec<&Recording> = recs.iter().collect();
         Ok((zs(&predictor, &refs[..1], &truth, *robot)?, zs(&predictor, &refs, &truth, *robot)?, recs.len()))
