@@ -152,7 +152,7 @@ impl std::fmt::Display for EstimateReport {
         for (k, l) in LABELS.iter().enumerate() {
             let mark = if self.from_log(k) { " " } else { "*" };
             let (v, est, unit) = (self.values[k], e.labels[k], l.kind.unit());
-            writeln!(f, "{:<12} {v:>12.6} {est:>12.6} {:>12.6}{mark} {unit}", l.name, spread[k])?;
+            writeln!(f, "{:<12} {v:>12.6} {est:>12.6} {:>12.2e}{mark} {unit}", l.name, spread[k])?;
         }
         let source = if e.spread_from_validation { "the checkpoint's report.json" } else { "the training labels" };
         match (&self.refinement, &self.warning) {
