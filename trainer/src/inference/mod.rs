@@ -96,9 +96,9 @@ pub type WholeRecording = (Evidence, Vec<f64>);
 #[derive(Debug, Clone)]
 pub struct Refinement {
     pub labels: [f64; NUM_LABELS],
-    /// Standard deviation per label [SI]: the refinement's posterior as calibrated, and for the physics estimator
-    /// never under the estimate's own spread (its evidence already read these torques: reading them again is no new
-    /// information); the estimate's spread where the torques cannot tell the label.
+    /// Standard deviation per label [SI]: the refinement's posterior as calibrated, and for a calibrated physics
+    /// estimator never under the estimate's own spread (its evidence already read these torques: reading them again
+    /// is no new information); the estimate's spread where the torques cannot tell the label.
     pub std: [f64; NUM_LABELS],
     /// The refinement's posterior as it came [SI] (before the calibration).
     pub posterior: [f64; NUM_LABELS],
@@ -316,10 +316,11 @@ impl Predictor {
         };
         // The physics estimator's evidence was these torques: the refinement makes the labels one physical robot
         // that fits them, but cannot know them better than the estimate did. Measured on held-out robots with 1 %
-        // effort noise, its own posterior put 49-52 % of friction labels within one (docs/measurements.md).
-        let std = match e.posterior {
-            Some(_) => std::array::from_fn(|k| calibrated[k].max(e.spread[k])),
-            None => calibrated,
+        // effort noise, its own posterior put 49-52 % of friction labels within one (docs/measurements.md). Only
+        // where the estimate's spread is its own calibrated posterior: an RMSE is one number for all robots.
+        let std = match (e.posterior, calibration) {
+            (Some(_), Some(_)) => std::array::from_fn(|k| calibrated[k].max(e.spread[k])),
+            _ => calibrated,
         };
         // Scored as the written URDF will be: projected to a physical robot.
         let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| r.ne.mean_nrmse(&pi));
