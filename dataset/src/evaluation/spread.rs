@@ -19,14 +19,15 @@
 
 use std::path::{Path, PathBuf};
 
-use dynforge_identify::{LeastSquares, NormalEquations, Prior, Refined, least_squares, refine};
+use dynforge_identify::{IdentifyError, LeastSquares, NormalEquations, Prior, Refined, least_squares, refine};
 use dynforge_proto::NUM_LABELS;
 use dynforge_proto::parallel::map_in_order;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::{Recording, read};
+use dynforge_robot::Model;
 use serde::{Deserialize, Serialize};
 
-use super::recording::{RecordingError, normal_equations, recording_error};
+use super::recording::{RecordingError, normal_equations};
 use super::{Estimated, Estimator, EvaluationError};
 
 type Labels = [f64; NUM_LABELS];
@@ -185,23 +186,33 @@ pub fn refine_recordings(
     spread: &Labels,
 ) -> Result<RefinedRecordings, RecordingError> {
     let p = recs.first().ok_or_else(|| RecordingError { file: String::new(), problem: "no recording".into() })?;
-    let mut ne = normal_equations(p)?;
-    for other in &recs[1..] {
-        ne.merge(&normal_equations(other)?);
-    }
-    refine_normal_equations(p, ne, labels, spread)
+    refine_normal_equations(&p.model, &p.path, merged_normal_equations(recs)?, labels, spread)
 }
 
-/// [`refine_recordings`] from their normal equations `ne` (`p` is one of them: its robot, and the file errors name).
+/// The normal equations of the recordings `recs` (at least one), summed.
+fn merged_normal_equations(recs: &[&Recording]) -> Result<NormalEquations, RecordingError> {
+    let (first, rest) =
+        recs.split_first().ok_or_else(|| RecordingError { file: String::new(), problem: "no recording".into() })?;
+    let mut ne = normal_equations(first)?;
+    for other in rest {
+        ne.merge(&normal_equations(other)?);
+    }
+    Ok(ne)
+}
+
+/// [`refine_recordings`] from their normal equations `ne` on their robot `model` (`file` names one of them in
+/// errors).
 fn refine_normal_equations(
-    p: &Recording,
+    model: &Model,
+    file: &Path,
     ne: NormalEquations,
     labels: &Labels,
     spread: &Labels,
 ) -> Result<RefinedRecordings, RecordingError> {
-    let ls = least_squares(&ne).map_err(|e| recording_error(p, e))?;
-    let prior = Prior::new(*labels, spread).map_err(|e| recording_error(p, e))?;
-    let refined = refine(&ne, &p.model, &prior, ls.sigma).map_err(|e| recording_error(p, e))?;
+    let bad = |e: IdentifyError| RecordingError { file: file.display().to_string(), problem: e.to_string() };
+    let ls = least_squares(&ne).map_err(bad)?;
+    let prior = Prior::new(*labels, spread).map_err(bad)?;
+    let refined = refine(&ne, model, &prior, ls.sigma).map_err(bad)?;
     Ok(RefinedRecordings { refined, least_squares: ls, ne })
 }
 
@@ -257,7 +268,8 @@ pub fn calibrate(pairs: &[(f64, f64, bool)]) -> (f64, f64) {
 
 /// One robot's estimate from its first logs: what the estimator said, and what refining it takes.
 struct Protocol {
-    first: Recording,
+    model: Model,
+    file: PathBuf,
     ne: NormalEquations,
     estimated: Estimated,
 }
@@ -315,11 +327,8 @@ pub(crate) fn fit(
         let protocol = |recs: &[Recording]| -> Result<Protocol, EvaluationError> {
             let refs: Vec<&Recording> = recs.iter().collect();
             let estimated = estimator.estimate_with_spread(&refs).map_err(EvaluationError::Estimator)?;
-            let mut ne = normal_equations(&recs[0])?;
-            for other in &recs[1..] {
-                ne.merge(&normal_equations(other)?);
-            }
-            Ok(Protocol { first: recs[0].clone(), ne, estimated })
+            let ne = merged_normal_equations(&refs)?;
+            Ok(Protocol { model: recs[0].model.clone(), file: recs[0].path.clone(), ne, estimated })
         };
         let protocols = counts
             .iter()
@@ -355,7 +364,7 @@ pub(crate) fn fit(
         let refined: Vec<(Labels, Refined)> = map_in_order(&at, |(truth, p)| {
             let e = &p.estimated;
             let spread = estimator_spread(e.posterior.as_ref(), e.at_floor, &estimator, &least);
-            let got = refine_normal_equations(&p.first, p.ne.clone(), &e.labels, &spread).ok()?;
+            let got = refine_normal_equations(&p.model, &p.file, p.ne.clone(), &e.labels, &spread).ok()?;
             Some((std::array::from_fn(|k| got.refined.labels[k] - truth[k]), got.refined))
         })
         .into_iter()
