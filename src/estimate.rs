@@ -36,7 +36,7 @@ pub fn run(args: EstimateArgs) -> Result<()> {
     let inputs: Vec<PathBuf> = std::iter::once(&args.log).chain(&args.urdf).cloned().collect();
     dynforge_recording::check_not_an_input(&out, &inputs)?;
     let report = estimate_to_urdf(&args.checkpoint, &args.log, (&document, &source), &out, !args.no_refine)?;
-    if let Some(w) = &report.warning {
+    for w in report.calibration_warning.iter().chain(&report.warning) {
         eprintln!("warning: {w}");
     }
     match args.json {

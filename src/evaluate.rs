@@ -28,9 +28,9 @@ pub struct EvaluateArgs {
     /// estimate with it) from half of their recordings, scored on the other half (0: skip it).
     #[arg(long, default_value_t = CHECKS.identify_robots)]
     identify_robots: usize,
-    /// Validation robots estimated and refined by their torques from 1, 2, 4, ... and all their logs, to calibrate
-    /// the spreads `estimate` prints per label toward 68 % within one and 95 % within two (0: skip it; the RMSE and
-    /// the posterior as they come).
+    /// Validation robots estimated and refined by their torques from 1, 2, 4, ... and all their logs, as simulated
+    /// and with 0.3, 1 and 3 % effort noise, to calibrate the spreads `estimate` prints per label toward 68 % within
+    /// one and 95 % within two (0: skip it; the RMSE and the posterior as they come).
     #[arg(long, default_value_t = CHECKS.spread_robots)]
     spread_robots: usize,
 }

@@ -377,11 +377,18 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     assert!(report["spread_calibration"].is_null(), "measured on {} robots", report["robots"]["count"]);
     let estimator_floors: Vec<f64> = (0..38).map(|k| 1e-3 * (1 + k) as f64).collect();
     let calibration = |scale: f64, floor: &[f64]| serde_json::json!({"scale": vec![scale; 38], "floor": floor});
+    // The part for a log with effort noise would widen tenfold: this log is at its noise floor, so it is not used.
+    let with_noisy = |mut c: serde_json::Value| {
+        let mut noisy = calibration(10.0, &[1.0; 38]);
+        noisy["noise"] = serde_json::json!(0.01);
+        c["noisy"] = serde_json::json!([noisy]);
+        c
+    };
     let with_calibration = |refined: &[f64]| -> serde_json::Value {
         let mut fitted = report.clone();
         let at = |logs: usize, estimator: serde_json::Value, refined: serde_json::Value| serde_json::json!({"logs": logs, "robots": 9, "estimator": estimator, "refined": refined, "coverage": []});
         fitted["spread_calibration"] = serde_json::json!({"robots": 9, "counts": [
-            at(1, calibration(0.5, &estimator_floors), calibration(1.0, refined)),
+            at(1, with_noisy(calibration(0.5, &estimator_floors)), with_noisy(calibration(1.0, refined))),
             at(4, calibration(1.0, &[1.0; 38]), calibration(1.0, &[1.0; 38])),
         ]});
         std::fs::write(run.join("report.json"), serde_json::to_vec(&fitted).unwrap()).unwrap();
@@ -410,6 +417,16 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
             assert_eq!(v["spread"].as_f64().unwrap(), want, "{}: {v}", l.name);
         }
     }
+    // A calibration that does not read is said, and the spreads are the validation RMSE as without one.
+    let mut broken = report.clone();
+    broken["spread_calibration"] = serde_json::json!({"robots": "nine"});
+    std::fs::write(run.join("report.json"), serde_json::to_vec(&broken).unwrap()).unwrap();
+    let o =
+        dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), validation_shard.to_str().unwrap(), "--json"]);
+    let said = stderr(&o);
+    assert!(o.status.success() && said.contains("report.json: spread_calibration does not read"), "{said}");
+    let fallback: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(fallback["refinement"]["calibration_robots"].is_null(), "{}", fallback["refinement"]);
     std::fs::write(run.join("report.json"), serde_json::to_vec(&report).unwrap()).unwrap();
 
     // A robot of another family is refused with the way out: the same joint names, one joint placed 5 cm off.

@@ -1,17 +1,20 @@
 //! Whether the spreads `estimate` reports are standard deviations: on robots the estimator never saw (a dataset of
 //! another seed), each label's error over its reported spread, `z = (value - truth) / spread`, should fall within 1
-//! about 68 % of the time and within 2 about 95 %. Measured for the estimator alone (its spread: the validation RMSE
-//! of `report.json` for this many logs) and refined by the log's torques (the posterior spread, what `estimate`
+//! about 68 % of the time and within 2 about 95 %. Measured for the estimator alone (its spread: the evidence's
+//! posterior as `report.json`'s calibration puts it, or the validation RMSE without one) and refined by the log's torques (the posterior spread, what `estimate`
 //! prints), from one log and from all of a robot's logs.
 //!
 //! Usage: dynforge-bench-coverage CHECKPOINT DATA [--robots N] [--dump FILE.tsv] [--noise LEVEL]
 //!
 //! `--dump` writes every label of every robot under both protocols: truth, the estimator's value and spread, the
-//! refined value and standard deviation, the family's spread, the evidence's own spread (NaN for the transformer).
+//! refined value and standard deviation, the family's spread, the evidence's own spread (NaN for the transformer),
+//! the logs' measured noise (the median over moving joints of each one's torque NRMSE, below the floor too).
 //! `--noise` adds white noise of that fraction of each joint's torque RMS to every recorded torque (a real robot's
-//! effort sensing; the logs' noise is then measured above the floor, and the calibration's scale does not apply).
+//! effort sensing; the logs' noise is then measured above the floor, and the calibration's part for that noise
+//! applies). Streams differ from `evaluate`'s validation noise, and so do the robots.
 
 use anyhow::{Context, Result, bail};
+use dynforge_dataset::evaluation::spread::{Noise, add_effort_noise};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::Recording;
 use dynforge_trainer::inference::Predictor;
@@ -30,12 +33,16 @@ struct Zs {
 fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], robot: u64) -> Result<Zs> {
     let e = predictor.estimate(recs)?;
     let r = predictor.refine(recs, &e)?;
+    let noise = match Noise::of(false, &e.noise) {
+        Noise::Measured(level) => level,
+        Noise::Floor => f64::NAN,
+    };
     let rows = LABELS
         .iter()
         .enumerate()
         .map(|(k, l)| {
             format!(
-                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
+                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
                 recs.len(),
                 l.name,
                 truth[k],
@@ -44,7 +51,8 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
                 r.labels[k],
                 r.std[k],
                 e.family[k],
-                e.posterior.map_or(f64::NAN, |p| p[k])
+                e.posterior.map_or(f64::NAN, |p| p[k]),
+                noise
             )
         })
         .collect();
@@ -53,22 +61,6 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
         refined: std::array::from_fn(|k| (r.labels[k] - truth[k]) / r.std[k]),
         rows,
     })
-}
-
-/// White noise of `level` times each joint's torque RMS on every recorded torque (`level` 0: none), as a real
-/// robot's effort sensing adds.
-fn add_effort_noise(rec: &mut Recording, level: f64, mut rng: dynforge_robot::rng::Rng) {
-    let tau = &mut rec.trajectory.tau;
-    let n = rec.trajectory.names.len();
-    if level <= 0.0 || n == 0 {
-        return;
-    }
-    let samples = (tau.len() / n).max(1) as f64;
-    let rms: Vec<f64> =
-        (0..n).map(|j| (tau.iter().skip(j).step_by(n).map(|t| t * t).sum::<f64>() / samples).sqrt()).collect();
-    for (i, t) in tau.iter_mut().enumerate() {
-        *t += level * rms[i % n] * rng.normal();
-    }
 }
 
 /// The label kinds as the table groups them.
@@ -124,7 +116,7 @@ fn main() -> Result<()> {
         let mut recs: Vec<Recording> =
             paths.iter().map(|p| dynforge_recording::read(p, None)).collect::<Result<_, _>>()?;
         for (t, rec) in recs.iter_mut().enumerate() {
-            add_effort_noise(rec, noise, dynforge_robot::rng::Rng::stream(*robot, &[t as u64]));
+            add_effort_noise(rec, noise, &mut dynforge_robot::rng::Rng::stream(*robot, &[t as u64]));
         }
         let truth = recs[0].labels.with_context(|| format!("robot {robot}: no labels"))?;
         let refs: Vec<&Recording> = recs.iter().collect();
@@ -142,7 +134,7 @@ fn main() -> Result<()> {
     }
     if let Some(file) = &dump {
         let mut text = String::from(
-            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\n",
+            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\tnoise\n",
         );
         for r in &rows {
             text.push_str(&r.0.rows);

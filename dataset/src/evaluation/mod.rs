@@ -35,8 +35,8 @@ pub struct Estimated {
     pub labels: Labels,
     /// The standard deviation per label [SI] the evidence implies (`None`: the estimator reads no evidence).
     pub posterior: Option<Labels>,
-    /// Whether that posterior assumed the noise floor on every joint (a simulated log) rather than measured noise.
-    pub at_floor: bool,
+    /// The noise that posterior assumed: the floor on every joint (a simulated log), or the log's measured noise.
+    pub noise: spread::Noise,
 }
 
 /// An estimator's own failure, as it reports it.
@@ -56,7 +56,7 @@ pub trait Estimator: Sync {
     /// [`Estimator::estimate`] with the standard deviation per label [SI] its evidence implies for this robot, when
     /// it reads one (the physics estimator: the posterior of the prior coordinates), before what the network adds.
     fn estimate_with_spread(&self, recordings: &[&Recording]) -> Result<Estimated, EstimatorError> {
-        Ok(Estimated { labels: self.estimate(recordings)?, posterior: None, at_floor: false })
+        Ok(Estimated { labels: self.estimate(recordings)?, posterior: None, noise: spread::Noise::Floor })
     }
 
     /// Whether `robot` was held out of its training whole (never under a split by trajectory or window).

@@ -17,7 +17,7 @@ use dynforge_dataset::cache::windows::CachedWindows;
 use dynforge_dataset::evaluation::EvaluationError;
 use dynforge_dataset::evaluation::recording::{RecordingError, physical_parameters};
 use dynforge_dataset::evaluation::spread::{
-    SpreadCalibration, between_log_counts, estimator_spread, refine_recordings,
+    Noise, SpreadCalibration, between_log_counts, estimator_spread, refine_recordings, refined_noise,
 };
 use dynforge_dataset::evidence::{EvidenceError, NOISE_FLOOR, features, label_posterior, measured_evidence};
 use dynforge_dataset::features::JacobianFeatures;
@@ -77,9 +77,13 @@ pub struct Estimate {
 }
 
 impl Estimate {
-    /// Whether the evidence assumed the noise floor on every joint (a simulated log's) rather than measured noise.
-    pub fn at_floor(&self) -> bool {
-        self.posterior.is_some() && at_noise_floor(&self.noise)
+    /// The noise the evidence assumed: the floor on every joint (a simulated log's), or the logs' measured noise.
+    /// The transformer reads no evidence: the floor, where its calibration has its one part.
+    pub fn assumed_noise(&self) -> Noise {
+        match self.posterior {
+            Some(_) => Noise::of(at_noise_floor(&self.noise), &self.noise),
+            None => Noise::Floor,
+        }
     }
 }
 
@@ -121,6 +125,8 @@ struct Validated {
     all: [f64; NUM_LABELS],
     per_robot: f64,
     calibration: Option<SpreadCalibration>,
+    /// Why `report.json`'s calibration was not used, when it is there and does not read.
+    calibration_problem: Option<String>,
 }
 
 impl Validated {
@@ -134,15 +140,30 @@ impl Validated {
             rmse.iter().all(|&x| x > 0.0 && x.is_finite()).then_some(rmse)
         };
         let all = rmse("robots")?;
-        let calibration = report.get("spread_calibration").and_then(|v| serde_json::from_value(v.clone()).ok());
+        // A calibration that does not read is said, not dropped in silence: the spreads fall back to the RMSE.
+        let (calibration, calibration_problem) = match report.get("spread_calibration").filter(|v| !v.is_null()) {
+            None => (None, None),
+            Some(v) => match serde_json::from_value(v.clone()) {
+                Ok(c) => (Some(c), None),
+                Err(e) => (
+                    None,
+                    Some(format!(
+                        "{}: spread_calibration does not read ({e}); the spreads are the validation RMSE (run \
+                         `dynforge evaluate` again to measure it)",
+                        dir.join("report.json").display()
+                    )),
+                ),
+            },
+        };
         Some(match rmse("recordings") {
             Some(one) => Validated {
                 one,
                 all,
                 per_robot: report.get("logs_per_robot").and_then(|v| v.as_f64()).unwrap_or(1.0),
                 calibration,
+                calibration_problem,
             },
-            None => Validated { one: all, all, per_robot: 1.0, calibration },
+            None => Validated { one: all, all, per_robot: 1.0, calibration, calibration_problem },
         })
     }
 
@@ -175,6 +196,11 @@ impl Predictor {
     /// The network (evaluation mode).
     pub fn model(&self) -> &Network {
         &self.model
+    }
+
+    /// Why the checkpoint's spread calibration is not used although `evaluate` wrote one (it does not read).
+    pub fn calibration_problem(&self) -> Option<&str> {
+        self.validated.as_ref()?.calibration_problem.as_deref()
     }
 
     /// Whether this is the physics estimator.
@@ -286,21 +312,24 @@ impl Predictor {
             _ => (mean, None),
         };
         let least: [f64; NUM_LABELS] = std::array::from_fn(|k| 1e-6 * family[k]);
-        let at_floor = posterior.is_some() && at_noise_floor(&noise);
-        // A calibration's scale narrows only a posterior at the floor: a real log's measured noise is kept.
-        let spread = self.validated.as_ref().map(|v| match &v.calibration {
-            Some(c) => estimator_spread(posterior.as_ref(), at_floor, &c.at(recs.len()).0, &least),
-            None => v.rmse(recs.len()),
-        });
-        Ok(Estimate {
+        let mut estimate = Estimate {
             labels,
-            spread: spread.unwrap_or(family),
-            spread_from_validation: spread.is_some(),
+            spread: family,
+            spread_from_validation: false,
             family,
             windows: per_window.len(),
             noise,
             posterior,
-        })
+        };
+        // The calibration's part for the noise the evidence assumed: at the floor (a simulated log) or at the log's.
+        if let Some(v) = &self.validated {
+            estimate.spread = match &v.calibration {
+                Some(c) => estimator_spread(posterior.as_ref(), estimate.assumed_noise(), &c.at(recs.len()).0, &least),
+                None => v.rmse(recs.len()),
+            };
+            estimate.spread_from_validation = true;
+        }
+        Ok(estimate)
     }
 
     /// The estimate `e` of the robot of recordings `recs` refined by physics: the labels that best explain their
@@ -311,7 +340,10 @@ impl Predictor {
         // The posterior as the validation robots calibrated it (`dynforge_dataset::evaluation::spread`).
         let calibration = self.validated.as_ref().and_then(|v| v.calibration.as_ref());
         let calibrated: [f64; NUM_LABELS] = match calibration.map(|c| c.at(recs.len()).1) {
-            Some(c) => std::array::from_fn(|k| c.apply(k, r.refined.std[k], r.refined.at_floor)),
+            Some(c) => {
+                let part = c.part(refined_noise(&r.refined, e.assumed_noise()));
+                std::array::from_fn(|k| part.apply(k, r.refined.std[k]))
+            }
             None => r.refined.std,
         };
         // The physics estimator's evidence was these torques: the refinement makes the labels one physical robot

@@ -20,6 +20,8 @@ pub struct EstimateReport {
     /// The refinement by the log's torques (`None` if not asked for, or if the log cannot refine: then `warning`).
     pub refinement: Option<Refinement>,
     pub warning: Option<String>,
+    /// The checkpoint's spread calibration could not be read (the spreads are then the validation RMSE).
+    pub calibration_warning: Option<String>,
     pub projections: Vec<String>,
     /// What writing into the user's URDF could not do as asked (a welded tool heavier than the estimate).
     pub notes: Vec<String>,
@@ -59,7 +61,18 @@ pub fn estimate_to_urdf(
     dynforge_proto::run_dir::write_atomic(out, text.as_bytes())
         .map_err(|source| InferenceError::Write { file: out.display().to_string(), source })?;
     let urdf = out.into();
-    Ok(EstimateReport { log: log.to_path_buf(), values, estimate, refinement, warning, projections, notes, urdf })
+    let calibration_warning = predictor.calibration_problem().map(str::to_string);
+    Ok(EstimateReport {
+        log: log.to_path_buf(),
+        values,
+        estimate,
+        refinement,
+        warning,
+        calibration_warning,
+        projections,
+        notes,
+        urdf,
+    })
 }
 
 /// Refined torque NRMSE on the log over its measured noise at which the robot is taken not to be one of the
