@@ -384,7 +384,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         c["noisy"] = serde_json::json!([noisy]);
         c
     };
-    let with_calibration = |refined: &[f64]| -> serde_json::Value {
+    let with_calibration = |refined: &[f64], log: &Path| -> serde_json::Value {
         let mut fitted = report.clone();
         let at = |logs: usize, estimator: serde_json::Value, refined: serde_json::Value| serde_json::json!({"logs": logs, "robots": 9, "estimator": estimator, "refined": refined, "coverage": []});
         fitted["spread_calibration"] = serde_json::json!({"robots": 9, "counts": [
@@ -392,18 +392,14 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
             at(4, calibration(1.0, &[1.0; 38]), calibration(1.0, &[1.0; 38])),
         ]});
         std::fs::write(run.join("report.json"), serde_json::to_vec(&fitted).unwrap()).unwrap();
-        let out = ok(dynforge(&[
-            "estimate",
-            "--checkpoint",
-            run.to_str().unwrap(),
-            validation_shard.to_str().unwrap(),
-            "--json",
-        ]));
+        let out = ok(dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), log.to_str().unwrap(), "--json"]));
         serde_json::from_str(&out).unwrap()
     };
     let refined_floors: Vec<f64> = (0..38).map(|k| 1e-4 * (1 + k) as f64).collect();
-    let (bare, widened) = (with_calibration(&[0.0; 38]), with_calibration(&refined_floors));
+    let (bare, widened) =
+        (with_calibration(&[0.0; 38], &validation_shard), with_calibration(&refined_floors, &validation_shard));
     assert_eq!(widened["refinement"]["calibration_robots"], 9);
+    assert!(bare["noise_level"].is_null(), "a simulated log is at its noise floor: {}", bare["noise_level"]);
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
         let (before, after) = (&bare["parameters"][l.name], &widened["parameters"][l.name]);
         let evidence = before["evidence_spread"].as_f64().unwrap();
@@ -416,6 +412,23 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
             let want = posterior.hypot(floor).max(estimator);
             assert_eq!(v["spread"].as_f64().unwrap(), want, "{}: {v}", l.name);
         }
+    }
+    // The same log with effort noise of 1 % of each joint's torque RMS, as a bag: its posterior is its measured
+    // noise's, and takes the noisy part (ten times the posterior, with that part's floor), refined likewise.
+    let mut rec = dynforge_recording::read(&validation_shard, None).unwrap();
+    let mut rng = dynforge_robot::rng::Rng::stream(7, &[]);
+    dynforge_dataset::evaluation::spread::add_effort_noise(&mut rec, 0.01, &mut rng);
+    let noisy_bag = dir.path().join("noisy.mcap");
+    let urdf_text = dynforge_robot::urdf::to_string(&rec.model, &Default::default());
+    dynforge_testkit::write_bag(&noisy_bag, &urdf_text, &rec.trajectory);
+    let noisy = with_calibration(&refined_floors, &noisy_bag);
+    assert!(noisy["noise_level"].as_f64().unwrap() > 1e-3, "{}", noisy["noise_level"]);
+    for l in dynforge_proto::LABELS.iter() {
+        let v = &noisy["parameters"][l.name];
+        let estimator = v["estimator_spread"].as_f64().unwrap();
+        assert_eq!(estimator, (10.0 * v["evidence_spread"].as_f64().unwrap()).hypot(1.0), "{}: {v}", l.name);
+        let refined = (10.0 * v["refined_posterior"].as_f64().unwrap()).hypot(1.0);
+        assert_eq!(v["spread"].as_f64().unwrap(), refined.max(estimator), "{}: {v}", l.name);
     }
     // A calibration that does not read is said, and the spreads are the validation RMSE as without one.
     let mut broken = report.clone();

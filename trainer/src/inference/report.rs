@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use dynforge_dataset::evaluation::recording::recording_error;
+use dynforge_dataset::evaluation::spread::Noise;
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_recording::Recording;
 use dynforge_robot::{parameters, urdf};
@@ -138,6 +139,7 @@ impl EstimateReport {
         });
         serde_json::json!({
             "windows": e.windows, "torque_noise": e.noise, "parameters": parameters, "refinement": refined,
+            "noise_level": match e.assumed_noise() { Noise::Floor => None, Noise::Measured(level) => Some(level) },
             "projections": self.projections, "notes": self.notes, "urdf": self.urdf,
         })
     }
@@ -170,9 +172,14 @@ impl std::fmt::Display for EstimateReport {
         let source = if e.spread_from_validation { "the checkpoint's report.json" } else { "the training labels" };
         match (&self.refinement, &self.warning) {
             (Some(r), _) => {
-                let widened = match r.calibration_robots {
-                    Some(n) => format!("; spreads calibrated on {n} validation robots"),
-                    None => String::new(),
+                let widened = match (r.calibration_robots, e.assumed_noise()) {
+                    (Some(n), Noise::Floor) => {
+                        format!("; spreads calibrated on {n} validation robots, for a log at the noise floor")
+                    }
+                    (Some(n), Noise::Measured(level)) => format!(
+                        "; spreads calibrated on {n} validation robots, at this log's noise (median NRMSE {level:.1e})"
+                    ),
+                    (None, _) => String::new(),
                 };
                 writeln!(
                     f,
