@@ -229,10 +229,10 @@ impl SpreadCalibration {
     pub fn markdown(&self) -> String {
         let mut out = format!(
             "\n**Spreads** ({} validation robots): the estimator's spread is the evidence's posterior per label, the \
-             refined one the posterior after the log's torques, each calibrated per label and log count (a scale and \
-             a floor in quadrature, one pair for a posterior at its noise floor and one for a log with effort noise, \
-             measured on the same logs given 0.1-3 % noise) toward 68 % of the labels within one and 95 % within two. \
-             Labels within one / two spreads:\n\n| logs | spread | as the posterior says | calibrated |\n\
+             refined one the posterior after the log's torques, each calibrated per label and log count toward 68 % of the labels within \
+             one and 95 % within two: a scale and a floor in quadrature for a posterior at its noise floor, and for a \
+             log with effort noise a scale per noise level, measured on the same logs given 0.3, 1 and 3 % noise (an \
+             estimator without a posterior gets a floor only). Labels within one / two spreads:\n\n| logs | spread | as the posterior says | calibrated |\n\
              |---:|---|---|---|\n",
             self.robots
         );
@@ -530,9 +530,9 @@ fn fit_count(clean: &[Case], noisy: &[Vec<Case>], least: &Labels) -> Fitted {
     let mut coverage = Vec::new();
     let all_noisy: Vec<Case> = noisy.iter().flatten().copied().collect();
     let all_refined_noisy: Vec<(Labels, Refined, Noise)> = refined_noisy.into_iter().flatten().collect();
-    for (cases, refined_cases, what) in
-        [(clean, &refined_clean, ""), (all_noisy.as_slice(), &all_refined_noisy, ", effort noise")]
-    {
+    // An estimator without a posterior (the transformer) has no noisy protocols: no rows for them.
+    let regimes = [(clean, &refined_clean, ""), (all_noisy.as_slice(), &all_refined_noisy, ", effort noise")];
+    for (cases, refined_cases, what) in regimes.into_iter().filter(|(cases, _, _)| !cases.is_empty()) {
         for (name, c) in [("estimator", Calibration::identity()), ("estimator, calibrated", estimator.clone())] {
             let (one, two) = shares(cases.iter().flat_map(|(t, p)| {
                 let e = &p.estimated;
