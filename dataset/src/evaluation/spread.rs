@@ -154,7 +154,8 @@ impl Calibration {
     }
 
     /// The standard deviation of label `k` whose posterior is `s`, assumed `noise`.
-    pub fn apply(&self, k: usize, s: f64, noise: Noise) -> f64 {
+    #[cfg(test)]
+    fn apply(&self, k: usize, s: f64, noise: Noise) -> f64 {
         self.part(noise).apply(k, s)
     }
 
