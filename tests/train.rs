@@ -371,9 +371,10 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
 
     // The calibration `evaluate` measures on validation robots (too few here: none). With one, the estimator's
     // spread is the evidence's own for this robot, scaled (a simulated log: its posterior assumed the noise floor)
-    // with the floor in quadrature; the refined spread the refinement's posterior likewise, never under the
-    // estimator's (whose evidence was the same torques); each at the calibration for this many logs (one: the
-    // one-log calibrations).
+    // with the floor in quadrature; the refined spread the refinement's posterior likewise; each at the
+    // calibration for this many logs (one: the one-log calibrations). The refined spread of a noisy log, or with a
+    // calibration written before noisy validation logs were measured (no noisy part), is never under the
+    // estimator's.
     assert!(report["spread_calibration"].is_null(), "measured on {} robots", report["robots"]["count"]);
     let estimator_floors: Vec<f64> = (0..38).map(|k| 1e-3 * (1 + k) as f64).collect();
     let calibration = |scale: f64, floor: &[f64]| serde_json::json!({"scale": vec![scale; 38], "floor": floor});
@@ -384,11 +385,12 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         c["noisy"] = serde_json::json!([noisy]);
         c
     };
-    let with_calibration = |refined: &[f64], log: &Path| -> serde_json::Value {
+    let with_calibration = |refined: &[f64], log: &Path, noisy: bool| -> serde_json::Value {
         let mut fitted = report.clone();
         let at = |logs: usize, estimator: serde_json::Value, refined: serde_json::Value| serde_json::json!({"logs": logs, "robots": 9, "estimator": estimator, "refined": refined, "coverage": []});
+        let part = |c: serde_json::Value| if noisy { with_noisy(c) } else { c };
         fitted["spread_calibration"] = serde_json::json!({"robots": 9, "counts": [
-            at(1, with_noisy(calibration(0.5, &estimator_floors)), with_noisy(calibration(1.0, refined))),
+            at(1, part(calibration(0.5, &estimator_floors)), part(calibration(1.0, refined))),
             at(4, calibration(1.0, &[1.0; 38]), calibration(1.0, &[1.0; 38])),
         ]});
         std::fs::write(run.join("report.json"), serde_json::to_vec(&fitted).unwrap()).unwrap();
@@ -396,8 +398,11 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         serde_json::from_str(&out).unwrap()
     };
     let refined_floors: Vec<f64> = (0..38).map(|k| 1e-4 * (1 + k) as f64).collect();
-    let (bare, widened) =
-        (with_calibration(&[0.0; 38], &validation_shard), with_calibration(&refined_floors, &validation_shard));
+    let (bare, widened) = (
+        with_calibration(&[0.0; 38], &validation_shard, true),
+        with_calibration(&refined_floors, &validation_shard, true),
+    );
+    let before_noisy = with_calibration(&refined_floors, &validation_shard, false);
     assert_eq!(widened["refinement"]["calibration_robots"], 9);
     assert!(bare["noise_level"].is_null(), "a simulated log is at its noise floor: {}", bare["noise_level"]);
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
@@ -409,19 +414,22 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         let posterior = before["refined_posterior"].as_f64().unwrap();
         assert_eq!(after["refined_posterior"].as_f64().unwrap(), posterior, "{}", l.name);
         for (v, floor) in [(before, 0.0), (after, refined_floors[k])] {
-            let want = posterior.hypot(floor).max(estimator);
-            assert_eq!(v["spread"].as_f64().unwrap(), want, "{}: {v}", l.name);
+            assert_eq!(v["spread"].as_f64().unwrap(), posterior.hypot(floor), "{}: {v}", l.name);
         }
+        let old = &before_noisy["parameters"][l.name];
+        let want = posterior.hypot(refined_floors[k]).max(estimator);
+        assert_eq!(old["spread"].as_f64().unwrap(), want, "{}: {old}", l.name);
     }
     // The same log with effort noise of 1 % of each joint's torque RMS, as a bag: its posterior is its measured
-    // noise's, and takes the noisy part (ten times the posterior, with that part's floor), refined likewise.
+    // noise's, and takes the noisy part (ten times the posterior, with that part's floor), refined likewise and never
+    // under the estimator's.
     let mut rec = dynforge_recording::read(&validation_shard, None).unwrap();
     let mut rng = dynforge_robot::rng::Rng::stream(7, &[]);
     dynforge_dataset::evaluation::spread::add_effort_noise(&mut rec, 0.01, &mut rng);
     let noisy_bag = dir.path().join("noisy.mcap");
     let urdf_text = dynforge_robot::urdf::to_string(&rec.model, &Default::default());
     dynforge_testkit::write_bag(&noisy_bag, &urdf_text, &rec.trajectory);
-    let noisy = with_calibration(&refined_floors, &noisy_bag);
+    let noisy = with_calibration(&refined_floors, &noisy_bag, true);
     assert!(noisy["noise_level"].as_f64().unwrap() > 1e-3, "{}", noisy["noise_level"]);
     for l in dynforge_proto::LABELS.iter() {
         let v = &noisy["parameters"][l.name];
