@@ -105,7 +105,7 @@ impl CoordinatePrior {
     }
 
     /// The coordinates at standard normal `z` (the inverse of [`CoordinatePrior::whiten`]).
-    fn colour(&self, z: &DVector<f64>) -> DVector<f64> {
+    pub(crate) fn colour(&self, z: &DVector<f64>) -> DVector<f64> {
         self.on_links(z.component_mul(&self.std), from_independent) + &self.mean
     }
 
@@ -278,22 +278,38 @@ pub fn solve(
     prior: &CoordinatePrior,
     start: &DVector<f64>,
 ) -> Result<Solution, IdentifyError> {
+    follow(ne, weights, prior, start, (TOLERANCE, TOLERANCE))
+}
+
+/// [`solve`], its stages before the last converged to a relative decrease of `stages`, the last to `last`.
+fn follow(
+    ne: &NormalEquations,
+    weights: &[f64],
+    prior: &CoordinatePrior,
+    start: &DVector<f64>,
+    (stages, last): (f64, f64),
+) -> Result<Solution, IdentifyError> {
     let data = Data::new(ne, weights);
     let at_start = data.cost(&DVector::from_vec(parameters(ne.dof(), start)));
     // A start the data cannot even score (overflowed) is searched at full weight.
     let mut share = if at_start.is_finite() { start.len() as f64 / at_start } else { 1.0 };
     let (mut x, mut iterations) = (start.clone(), 0);
     while share < 1.0 {
-        let stage = search(&data.scaled(share), prior, &x)?;
+        let stage = search(&data.scaled(share), prior, &x, stages)?;
         (x, iterations) = (stage.x, iterations + stage.iterations);
         share *= CONTINUATION_STEP;
     }
-    let last = search(&data, prior, &x)?;
+    let last = search(&data, prior, &x, last)?;
     Ok(Solution { iterations: iterations + last.iterations, ..last })
 }
 
 /// Levenberg-Marquardt from `start` on the data `data` under `prior`.
-fn search(data: &Data, prior: &CoordinatePrior, start: &DVector<f64>) -> Result<Solution, IdentifyError> {
+fn search(
+    data: &Data,
+    prior: &CoordinatePrior,
+    start: &DVector<f64>,
+    tolerance: f64,
+) -> Result<Solution, IdentifyError> {
     let n = start.len() / (COORDINATES + NF);
     let precision = prior.precision();
     let scale = prior.marginal_std();
@@ -323,7 +339,7 @@ fn search(data: &Data, prior: &CoordinatePrior, start: &DVector<f64>) -> Result<
             if f_next <= f {
                 // Converged when the objective stops falling, or the step is nothing on the prior's scale.
                 let step = (&next - &x).component_div(&scale).amax();
-                converged = f - f_next <= TOLERANCE * f.max(1.0) || step < 1e-9;
+                converged = f - f_next <= tolerance * f.max(1.0) || step < 1e-9;
                 x = next;
                 f = f_next;
                 lambda = (lambda / 3.0).max(1e-12);
@@ -340,6 +356,133 @@ fn search(data: &Data, prior: &CoordinatePrior, start: &DVector<f64>) -> Result<
     let hessian = jac.transpose() * &data.g * &jac + &precision;
     let covariance = Scaled::new(&hessian)?.inverse();
     Ok(Solution { x, cost: f, covariance, iterations, converged })
+}
+
+/// Prior draws the search also starts from, besides the description ([`optima`]).
+pub const STARTS: usize = 8;
+
+/// Relative decrease of the objective at which a start's path under its moved prior is followed far enough: the
+/// search under the prior itself that ends it converges to [`TOLERANCE`].
+const ROUGH: f64 = 1e-6;
+
+/// Seed of the starts' draws: the same for every calibration, so that the same logs give the same URDF.
+const START_SEED: u64 = 0x5eed_0f_0a7;
+
+/// Objective above the best optimum's beyond which an optimum's share of the posterior (`exp(-gap)`) is nothing.
+pub const NEGLIGIBLE_GAP: f64 = 20.0;
+
+/// The optima the searches from the description and from prior draws end at.
+#[derive(Debug, Clone)]
+pub struct Optima {
+    /// The optimum of lowest objective: the MAP.
+    pub best: Solution,
+    /// `sum_k w_k d_k d_k^T`, `d_k` each optimum's distance from the best and `w_k` its share of the posterior
+    /// (`exp(-objective)`, normalized over the optima): what a spread about the best must add for the
+    /// others.
+    pub between: DMatrix<f64>,
+    /// Objective gap of every other optimum that has a share (under [`NEGLIGIBLE_GAP`]), lowest first.
+    pub gaps: Vec<f64>,
+}
+
+/// The MAP among the optima that searches from `found`'s start and from [`STARTS`] draws of the prior reach (each by
+/// continuation, as [`solve`] searches), and the spread the others add.
+///
+/// The posterior can have more than one optimum within a unit or two of the objective: the UR5's forearm COM and the
+/// mass of the wrist at its far end trade along a first moment the torques see, and a URDF whose COM prior is wide
+/// (a COM stated far from the joint) lets the search from it end with the COM at the joint and the wrist twice as
+/// heavy, or at the truth (docs/notes.md, 2026-11-27). A Laplace spread at either optimum is a twentieth of the
+/// distance between them. Searches from draws of the prior find the others; the lowest objective is the MAP, and
+/// each other end that the way to every optimum kept so far leaves by rising ([`BARRIER`]) is an optimum, which adds
+/// its distance, weighted by its share, to the spread.
+pub fn optima(
+    ne: &NormalEquations,
+    weights: &[f64],
+    prior: &CoordinatePrior,
+    found: Solution,
+) -> Result<Optima, IdentifyError> {
+    let links = ne.dof();
+    let draws: Vec<CoordinatePrior> = (0..STARTS as u64)
+        .map(|k| {
+            let mut rng = dynforge_robot::rng::Rng::stream(START_SEED, &[k]);
+            let mut mean = prior.colour(&DVector::from_fn(prior.mean.len(), |_, _| rng.normal()));
+            for v in mean.rows_mut(COORDINATES * links, NF * links).iter_mut() {
+                *v = v.max(0.0);
+            }
+            CoordinatePrior { mean, ..prior.clone() }
+        })
+        .collect();
+    // Each start is the MAP under the prior moved to a draw of itself, then searched under the prior itself: a
+    // continuation under the prior itself from a draw follows the prior's pull back to the path from its mean and
+    // ends where that does. A start the search cannot follow (a draw far in the prior's tail) is one fewer.
+    let ends = dynforge_proto::parallel::map_in_order(&draws, |moved| {
+        let start = follow(ne, weights, moved, &moved.mean, (ROUGH, ROUGH)).ok()?;
+        follow(ne, weights, prior, &start.x, (ROUGH, TOLERANCE)).ok()
+    });
+    let mut all: Vec<Solution> = std::iter::once(found).chain(ends.into_iter().flatten()).collect();
+    all.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    let best = all.swap_remove(0);
+    let objective = Objective { data: Data::new(ne, weights), prior, links };
+    let mut others: Vec<Solution> = Vec::new();
+    for s in all.into_iter().filter(|s| s.cost - best.cost < NEGLIGIBLE_GAP) {
+        if std::iter::once(&best).chain(&others).all(|o| objective.barrier(&s, o) > BARRIER) {
+            others.push(s);
+        }
+    }
+    let total: f64 = 1.0 + others.iter().map(|s| (best.cost - s.cost).exp()).sum::<f64>();
+    let mut between = DMatrix::zeros(best.x.len(), best.x.len());
+    for s in &others {
+        let d = &s.x - &best.x;
+        between += (&d * d.transpose()) * ((best.cost - s.cost).exp() / total);
+    }
+    let gaps = others.iter().map(|s| s.cost - best.cost).collect();
+    Ok(Optima { best, between, gaps })
+}
+
+/// Rise of the objective above a search's end on the way to another optimum beyond which the end is an optimum of
+/// its own.
+const BARRIER: f64 = 0.05;
+
+/// Points of the way from one search's end to another optimum at which the objective is evaluated.
+const WAY: usize = 32;
+
+/// The MAP's objective, as a function of the parameters.
+struct Objective<'a> {
+    data: Data,
+    prior: &'a CoordinatePrior,
+    links: usize,
+}
+
+impl Objective<'_> {
+    /// The highest objective on the straight way in the parameters from `end` to `other`, over `end`'s own.
+    ///
+    /// A search's end is an optimum of its own only if the way to the other rises first. The torques are a linear
+    /// function of the parameters, so in them the data's valley is straight and the way stays on its floor (and
+    /// every point of it is a physical body: the set is convex); in the coordinates the same valley is curved and
+    /// narrow enough on a clean log that the search stops on its wall, a unit or less of objective above the
+    /// optimum it was still crawling toward, looking like another optimum to every local test.
+    fn barrier(&self, end: &Solution, other: &Solution) -> f64 {
+        let (a, b) = (parameters(self.links, &end.x), parameters(self.links, &other.x));
+        (1..WAY)
+            .map(|k| {
+                let t = k as f64 / WAY as f64;
+                let pi: Vec<f64> = a.iter().zip(&b).map(|(a, b)| a + t * (b - a)).collect();
+                self.at(&pi).map_or(f64::INFINITY, |f| f - end.cost)
+            })
+            .fold(f64::NEG_INFINITY, f64::max)
+    }
+
+    /// The objective at the parameters `pi` (`None` where a link's are not a physical body).
+    fn at(&self, pi: &[f64]) -> Option<f64> {
+        let n = self.links;
+        let mut x = DVector::zeros(coordinates(n));
+        for l in 0..n {
+            let theta = standard::coordinates(&pi[NI * l..NI * (l + 1)])?;
+            x.rows_mut(COORDINATES * l, COORDINATES).copy_from_slice(&theta);
+        }
+        x.rows_mut(COORDINATES * n, NF * n).copy_from_slice(&pi[NI * n..]);
+        let z = self.prior.whiten(&x);
+        Some(self.data.cost(&DVector::from_column_slice(pi)) + 0.5 * z.dot(&z))
+    }
 }
 
 /// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`) and `S`'s

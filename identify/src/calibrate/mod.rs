@@ -359,16 +359,19 @@ fn fit(
         weights = (0..n).map(|j| weight(j, measured[j].std.powi(2), measured[j].time_of_rows)).collect();
         solution = consistent::solve(ne, &weights, &prior, &solution.x)?;
     }
+    let optima = consistent::optima(ne, &weights, &prior, solution)?;
+    let mut solution = optima.best;
     // The sandwich sees the residual as it is; a joint whose residual is under the noise floor is taken at the floor,
     // as its weight is (its scores scaled up): an exact simulation's residual is a model's error, not noise.
     let at_floor: Vec<f64> =
         (0..n).map(|j| weights[j] * (floor(j) / measured[j].std.max(f64::MIN_POSITIVE)).max(1.0)).collect();
-    solution.covariance = sandwich(&solution, ne, &at_floor, &prior, (model, logs), (velocity, convention), &measured)?;
+    solution.covariance =
+        sandwich(&solution, ne, &at_floor, &prior, (model, logs), (velocity, convention), &measured)? + &optima.between;
     let pi = consistent::parameters(n, &solution.x);
     let calibrated = model_with(model, &pi)?;
     let noise = measured.iter().map(|m| m.std).collect();
     let correlation = measured.iter().map(|m| m.time).collect();
-    Ok(Identification::new(report::Fitted {
+    let mut id = Identification::new(report::Fitted {
         model,
         calibrated,
         ne,
@@ -380,7 +383,18 @@ fn fit(
         convention,
         logs,
         noise_gain: noise_gain(velocity.source, velocity.cutoff, convention, logs[0].dt),
-    }))
+    });
+    if !optima.gaps.is_empty() {
+        let gaps: Vec<String> = optima.gaps.iter().map(|g| format!("{g:.2}")).collect();
+        id.notes.push(format!(
+            "the torques leave {} optima within {} of the objective (the others {} above the MAP's): the spreads \
+             include the distance to them, weighted by their share of the posterior (exp(-gap))",
+            optima.gaps.len() + 1,
+            consistent::NEGLIGIBLE_GAP,
+            gaps.join(", ")
+        ));
+    }
+    Ok(id)
 }
 
 /// Blocks of the sandwich's scores, in correlation times of the slowest joint's residual: long enough that blocks
