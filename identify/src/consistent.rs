@@ -413,18 +413,22 @@ pub fn optima(
         .collect();
     // Each start is the MAP under the prior moved to a draw of itself, then searched under the prior itself: a
     // continuation under the prior itself from a draw follows the prior's pull back to the path from its mean and
-    // ends where that does. A start the search cannot follow (a draw far in the prior's tail) is one fewer.
+    // ends where that does. A start from which the way to the description's optimum only descends is in its basin
+    // and is not searched on; a start the search cannot follow (a draw far in the prior's tail) is one fewer.
+    let objective = Objective { data: Data::new(ne, weights), prior, links };
     let ends = dynforge_proto::parallel::map_in_order(&draws, |moved| {
         let start = follow(ne, weights, moved, &moved.mean, (ROUGH, ROUGH)).ok()?;
+        if objective.barrier(&start.x, &found.x) <= BARRIER {
+            return None;
+        }
         follow(ne, weights, prior, &start.x, (ROUGH, TOLERANCE)).ok()
     });
     let mut all: Vec<Solution> = std::iter::once(found).chain(ends.into_iter().flatten()).collect();
     all.sort_by(|a, b| a.cost.total_cmp(&b.cost));
     let best = all.swap_remove(0);
-    let objective = Objective { data: Data::new(ne, weights), prior, links };
     let mut others: Vec<Solution> = Vec::new();
     for s in all.into_iter().filter(|s| s.cost - best.cost < NEGLIGIBLE_GAP) {
-        if std::iter::once(&best).chain(&others).all(|o| objective.barrier(&s, o) > BARRIER) {
+        if std::iter::once(&best).chain(&others).all(|o| objective.barrier(&s.x, &o.x) > BARRIER) {
             others.push(s);
         }
     }
@@ -453,20 +457,22 @@ struct Objective<'a> {
 }
 
 impl Objective<'_> {
-    /// The highest objective on the straight way in the parameters from `end` to `other`, over `end`'s own.
+    /// The highest objective on the straight way in the parameters from `end` to `other`, over `end`'s own (both
+    /// coordinates).
     ///
     /// A search's end is an optimum of its own only if the way to the other rises first. The torques are a linear
     /// function of the parameters, so in them the data's valley is straight and the way stays on its floor (and
     /// every point of it is a physical body: the set is convex); in the coordinates the same valley is curved and
     /// narrow enough on a clean log that the search stops on its wall, a unit or less of objective above the
     /// optimum it was still crawling toward, looking like another optimum to every local test.
-    fn barrier(&self, end: &Solution, other: &Solution) -> f64 {
-        let (a, b) = (parameters(self.links, &end.x), parameters(self.links, &other.x));
+    fn barrier(&self, end: &DVector<f64>, other: &DVector<f64>) -> f64 {
+        let (a, b) = (parameters(self.links, end), parameters(self.links, other));
+        let Some(at_end) = self.at(&a) else { return f64::INFINITY };
         (1..WAY)
             .map(|k| {
                 let t = k as f64 / WAY as f64;
                 let pi: Vec<f64> = a.iter().zip(&b).map(|(a, b)| a + t * (b - a)).collect();
-                self.at(&pi).map_or(f64::INFINITY, |f| f - end.cost)
+                self.at(&pi).map_or(f64::INFINITY, |f| f - at_end)
             })
             .fold(f64::NEG_INFINITY, f64::max)
     }
