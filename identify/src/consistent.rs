@@ -278,19 +278,18 @@ pub fn solve(
     prior: &CoordinatePrior,
     start: &DVector<f64>,
 ) -> Result<Solution, IdentifyError> {
-    follow(ne, weights, prior, start, (TOLERANCE, TOLERANCE))
+    follow(&Data::new(ne, weights), prior, start, (TOLERANCE, TOLERANCE))
 }
 
-/// [`solve`], its stages before the last converged to a relative decrease of `stages`, the last to `last`.
+/// [`solve`] on the weighted data `data`, its stages before the last converged to a relative decrease of `stages`,
+/// the last to `last`.
 fn follow(
-    ne: &NormalEquations,
-    weights: &[f64],
+    data: &Data,
     prior: &CoordinatePrior,
     start: &DVector<f64>,
     (stages, last): (f64, f64),
 ) -> Result<Solution, IdentifyError> {
-    let data = Data::new(ne, weights);
-    let at_start = data.cost(&DVector::from_vec(parameters(ne.dof(), start)));
+    let at_start = data.cost(&DVector::from_vec(parameters(start.len() / (COORDINATES + NF), start)));
     // A start the data cannot even score (overflowed) is searched at full weight.
     let mut share = if at_start.is_finite() { start.len() as f64 / at_start } else { 1.0 };
     let (mut x, mut iterations) = (start.clone(), 0);
@@ -299,7 +298,7 @@ fn follow(
         (x, iterations) = (stage.x, iterations + stage.iterations);
         share *= CONTINUATION_STEP;
     }
-    let last = search(&data, prior, &x, last)?;
+    let last = search(data, prior, &x, last)?;
     Ok(Solution { iterations: iterations + last.iterations, ..last })
 }
 
@@ -366,7 +365,7 @@ pub const STARTS: usize = 8;
 const ROUGH: f64 = 1e-6;
 
 /// Seed of the starts' draws: the same for every calibration, so that the same logs give the same URDF.
-const START_SEED: u64 = 0x5eed_0f_0a7;
+const START_SEED: u64 = 0x0005_eed0_f0a7;
 
 /// Objective above the best optimum's beyond which an optimum's share of the posterior (`exp(-gap)`) is nothing.
 pub const NEGLIGIBLE_GAP: f64 = 20.0;
@@ -417,11 +416,11 @@ pub fn optima(
     // and is not searched on; a start the search cannot follow (a draw far in the prior's tail) is one fewer.
     let objective = Objective { data: Data::new(ne, weights), prior, links };
     let ends = dynforge_proto::parallel::map_in_order(&draws, |moved| {
-        let start = follow(ne, weights, moved, &moved.mean, (ROUGH, ROUGH)).ok()?;
+        let start = follow(&objective.data, moved, &moved.mean, (ROUGH, ROUGH)).ok()?;
         if objective.barrier(&start.x, &found.x) <= BARRIER {
             return None;
         }
-        follow(ne, weights, prior, &start.x, (ROUGH, TOLERANCE)).ok()
+        follow(&objective.data, prior, &start.x, (ROUGH, TOLERANCE)).ok()
     });
     let mut all: Vec<Solution> = std::iter::once(found).chain(ends.into_iter().flatten()).collect();
     all.sort_by(|a, b| a.cost.total_cmp(&b.cost));
