@@ -327,9 +327,9 @@ fn search(
         let jac = jacobian(n, &x);
         let grad = jac.transpose() * (&data.g * &pi - &data.rhs) + &precision * (&x - &prior.mean);
         let hessian = jac.transpose() * &data.g * &jac + &precision;
-        let scaled = Scaled::new(&hessian)?;
+        let scaled = Scaled::new(&hessian);
         loop {
-            let mut next = &x - scaled.solve(&grad, lambda);
+            let mut next = &x - scaled.solve(&grad, lambda)?;
             // Friction is not negative.
             for k in COORDINATES * n..next.len() {
                 next[k] = next[k].max(0.0);
@@ -353,7 +353,7 @@ fn search(
     }
     let jac = jacobian(n, &x);
     let hessian = jac.transpose() * &data.g * &jac + &precision;
-    let covariance = Scaled::new(&hessian)?.inverse();
+    let covariance = Scaled::new(&hessian).inverse()?;
     Ok(Solution { x, cost: f, covariance, iterations, converged })
 }
 
@@ -490,38 +490,55 @@ impl Objective<'_> {
     }
 }
 
-/// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`) and `S`'s
-/// eigen-decomposition: the torques and the prior weigh coordinates over twenty orders of magnitude, which a
-/// Cholesky factor of `H` itself does not survive; `S`'s eigenvalues are exact to rounding of its unit scale.
+/// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`): the torques and
+/// the prior weigh coordinates over twenty orders of magnitude, which a Cholesky factor of `H` itself does not
+/// survive. `S`'s eigen-decomposition, exact to rounding of its unit scale, is made when needed: for `H^-1`, and for
+/// a step whose `S + lambda I` rounding leaves without a Cholesky factor.
 struct Scaled {
     d: DVector<f64>,
-    vectors: DMatrix<f64>,
-    values: Vec<f64>,
+    s: DMatrix<f64>,
+    eigen: std::cell::OnceCell<(DMatrix<f64>, Vec<f64>)>,
 }
 
 impl Scaled {
-    fn new(h: &DMatrix<f64>) -> Result<Self, IdentifyError> {
+    fn new(h: &DMatrix<f64>) -> Self {
         let d = DVector::from_fn(h.nrows(), |i, _| 1.0 / h[(i, i)].max(f64::MIN_POSITIVE).sqrt());
         let s = DMatrix::from_fn(h.nrows(), h.ncols(), |i, j| h[(i, j)] * d[i] * d[j]);
-        let (vectors, values) = crate::solve::eigen(&s)?;
-        Ok(Scaled { d, vectors, values })
+        Scaled { d, s, eigen: std::cell::OnceCell::new() }
     }
 
-    /// `(H + lambda diag(H))^-1 g`: the scaled matrix gains `lambda` on its (unit) diagonal.
-    fn solve(&self, g: &DVector<f64>, lambda: f64) -> DVector<f64> {
+    /// `S`'s eigenvectors and eigenvalues.
+    fn eigen(&self) -> Result<&(DMatrix<f64>, Vec<f64>), IdentifyError> {
+        if self.eigen.get().is_none() {
+            // Unset until now, so this cannot fail.
+            let _ = self.eigen.set(crate::solve::eigen(&self.s)?);
+        }
+        Ok(self.eigen.get().expect("the decomposition was just made"))
+    }
+
+    /// `(H + lambda diag(H))^-1 g`: the scaled matrix gains `lambda` on its (unit) diagonal. A Cholesky solve (a
+    /// tenth of a decomposition's work: the search makes one or more per iteration, eight starts over), or the
+    /// decomposition's with eigenvalues held above rounding.
+    fn solve(&self, g: &DVector<f64>, lambda: f64) -> Result<DVector<f64>, IdentifyError> {
         let rhs = g.component_mul(&self.d);
-        let proj = self.vectors.transpose() * rhs;
-        let top = self.values.iter().fold(0.0f64, |m, v| m.max(*v));
-        let y = DVector::from_fn(proj.len(), |k, _| proj[k] / (self.values[k].max(1e-15 * top) + lambda));
-        (&self.vectors * y).component_mul(&self.d)
+        let shifted = &self.s + DMatrix::from_diagonal_element(self.s.nrows(), self.s.ncols(), lambda);
+        if let Some(c) = shifted.cholesky() {
+            return Ok(c.solve(&rhs).component_mul(&self.d));
+        }
+        let (vectors, values) = self.eigen()?;
+        let proj = vectors.transpose() * rhs;
+        let top = values.iter().fold(0.0f64, |m, v| m.max(*v));
+        let y = DVector::from_fn(proj.len(), |k, _| proj[k] / (values[k].max(1e-15 * top) + lambda));
+        Ok((vectors * y).component_mul(&self.d))
     }
 
     /// `H^-1`.
-    fn inverse(&self) -> DMatrix<f64> {
-        let top = self.values.iter().fold(0.0f64, |m, v| m.max(*v));
-        let inv = DVector::from_iterator(self.values.len(), self.values.iter().map(|v| 1.0 / v.max(1e-15 * top)));
-        let s_inv = &self.vectors * DMatrix::from_diagonal(&inv) * self.vectors.transpose();
-        DMatrix::from_fn(s_inv.nrows(), s_inv.ncols(), |i, j| s_inv[(i, j)] * self.d[i] * self.d[j])
+    fn inverse(&self) -> Result<DMatrix<f64>, IdentifyError> {
+        let (vectors, values) = self.eigen()?;
+        let top = values.iter().fold(0.0f64, |m, v| m.max(*v));
+        let inv = DVector::from_iterator(values.len(), values.iter().map(|v| 1.0 / v.max(1e-15 * top)));
+        let s_inv = vectors * DMatrix::from_diagonal(&inv) * vectors.transpose();
+        Ok(DMatrix::from_fn(s_inv.nrows(), s_inv.ncols(), |i, j| s_inv[(i, j)] * self.d[i] * self.d[j]))
     }
 }
 

@@ -177,12 +177,11 @@ fn difference_share(seg: &JointTrajectory) -> f64 {
 pub fn choose_cutoff(segments: &[&JointTrajectory], dt: f64) -> f64 {
     let fs = 1.0 / dt;
     let hi = (CUTOFF_SHARE * fs).min(CUTOFF_RANGE.1);
-    let n = segments.first().map_or(0, |s| s.joints());
+    let sigmas = position_noise(segments);
+    // The acceleration's spread, seen through a filter low enough to hold no noise.
+    let accs = acceleration_spread(segments, dt, (CUTOFF_RANGE.0 * 2.5).min(hi));
     let mut best = hi;
-    for j in 0..n {
-        let sigma = position_noise(segments, j);
-        // The acceleration's spread, seen through a filter low enough to hold no noise.
-        let acc = acceleration_spread(segments, j, dt, (CUTOFF_RANGE.0 * 2.5).min(hi));
+    for (&sigma, &acc) in sigmas.iter().zip(&accs) {
         if sigma <= 0.0 || acc <= 0.0 {
             continue;
         }
@@ -195,54 +194,69 @@ pub fn choose_cutoff(segments: &[&JointTrajectory], dt: f64) -> f64 {
     best.clamp(CUTOFF_RANGE.0, hi.max(CUTOFF_RANGE.0))
 }
 
-/// The standard deviation of joint `j`'s position noise: a quantisation step's `step / sqrt(12)` when the positions
+/// The standard deviation of each joint's position noise: a quantisation step's `step / sqrt(12)` when the positions
 /// are quantised, else the white noise their third differences show (`var = 20 s^2`).
-fn position_noise(segments: &[&JointTrajectory], j: usize) -> f64 {
-    let mut steps: Vec<f64> = Vec::new();
-    let (mut sum3, mut count3) = (0.0, 0usize);
+fn position_noise(segments: &[&JointTrajectory]) -> Vec<f64> {
+    let n = segments.first().map_or(0, |s| s.joints());
+    // Per joint: the sum of squared third differences and their count, the smallest step and the number of steps.
+    let (mut sum3, mut count3) = (vec![0.0; n], 0usize);
+    let (mut smallest, mut steps) = (vec![f64::INFINITY; n], vec![0usize; n]);
     for s in segments {
-        let n = s.joints();
-        let q = |i: usize| s.q[i * n + j];
         for i in 1..s.len() {
-            let d = (q(i) - q(i - 1)).abs();
-            if d > 0.0 {
-                steps.push(d);
+            let (now, before) = (&s.q[i * n..(i + 1) * n], &s.q[(i - 1) * n..i * n]);
+            for j in 0..n {
+                let d = (now[j] - before[j]).abs();
+                if d > 0.0 {
+                    smallest[j] = smallest[j].min(d);
+                    steps[j] += 1;
+                }
+            }
+            if i >= 3 {
+                let q = |back: usize, j: usize| s.q[(i - back) * n + j];
+                for (j, sum) in sum3.iter_mut().enumerate() {
+                    let d3 = q(0, j) - 3.0 * q(1, j) + 3.0 * q(2, j) - q(3, j);
+                    *sum += d3 * d3;
+                }
+                count3 += 1;
             }
         }
-        for i in 3..s.len() {
-            let d3 = q(i) - 3.0 * q(i - 1) + 3.0 * q(i - 2) - q(i - 3);
-            sum3 += d3 * d3;
-            count3 += 1;
+    }
+    // Quantised: every step a multiple of the smallest (to 1 %), which is then the encoder's resolution.
+    let mut quantised: Vec<bool> = (0..n).map(|j| smallest[j].is_finite() && steps[j] > 100).collect();
+    for s in segments {
+        for i in 1..s.len() {
+            for (j, q) in quantised.iter_mut().enumerate().filter(|(_, q)| **q) {
+                let d = (s.q[i * n + j] - s.q[(i - 1) * n + j]).abs();
+                let k = d / smallest[j];
+                *q = d == 0.0 || (k - k.round()).abs() < 0.01;
+            }
         }
     }
-    let white = (sum3 / count3.max(1) as f64 / 20.0).sqrt();
-    // Quantised: every step a multiple of the smallest (to 1 %), which is then the encoder's resolution.
-    let smallest = steps.iter().copied().fold(f64::INFINITY, f64::min);
-    let quantised = smallest.is_finite()
-        && steps.len() > 100
-        && steps.iter().all(|d| {
-            let k = d / smallest;
-            (k - k.round()).abs() < 0.01
-        });
-    if quantised { white.max(smallest / 12f64.sqrt()) } else { white }
+    (0..n)
+        .map(|j| {
+            let white = (sum3[j] / count3.max(1) as f64 / 20.0).sqrt();
+            if quantised[j] { white.max(smallest[j] / 12f64.sqrt()) } else { white }
+        })
+        .collect()
 }
 
-/// Standard deviation of joint `j`'s acceleration after a zero-phase low-pass at `fc`.
-fn acceleration_spread(segments: &[&JointTrajectory], j: usize, dt: f64, fc: f64) -> f64 {
-    let (mut sum, mut sum2, mut count) = (0.0, 0.0, 0usize);
+/// Standard deviation of each joint's acceleration after a zero-phase low-pass at `fc`.
+fn acceleration_spread(segments: &[&JointTrajectory], dt: f64, fc: f64) -> Vec<f64> {
+    let n = segments.first().map_or(0, |s| s.joints());
+    let (mut sum, mut sum2, mut count) = (vec![0.0; n], vec![0.0; n], 0usize);
     for s in segments {
-        let n = s.joints();
-        let q: Vec<f64> = (0..s.len()).map(|i| s.q[i * n + j]).collect();
-        let f = Butterworth::new(fc, dt).filtfilt(&q);
-        for i in 1..f.len().saturating_sub(1) {
-            let a = (f[i + 1] - 2.0 * f[i] + f[i - 1]) / (dt * dt);
-            sum += a;
-            sum2 += a * a;
+        let f = Butterworth::new(fc, dt).filtfilt_columns(&s.q, n);
+        for i in 1..s.len().saturating_sub(1) {
+            for j in 0..n {
+                let a = (f[(i + 1) * n + j] - 2.0 * f[i * n + j] + f[(i - 1) * n + j]) / (dt * dt);
+                sum[j] += a;
+                sum2[j] += a * a;
+            }
             count += 1;
         }
     }
     let c = count.max(1) as f64;
-    (sum2 / c - (sum / c).powi(2)).max(0.0).sqrt()
+    (0..n).map(|j| (sum2[j] / c - (sum[j] / c).powi(2)).max(0.0).sqrt()).collect()
 }
 
 /// A segment conditioned for identification: velocity from `source`, both effort pairings.
@@ -250,8 +264,44 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
     let n = seg.joints();
     let len = seg.len();
     let dt = if len > 1 { (seg.t[len - 1] - seg.t[0]) / (len - 1) as f64 } else { 0.0 };
-    let column = |v: &[f64], j: usize| (0..len).map(|i| v[i * n + j]).collect::<Vec<f64>>();
     let filter = Butterworth::new(cutoff, dt);
+    // Row-major `[sample][joint]` throughout, as the log holds them: every joint filtered in one sweep.
+    let tau = &seg.tau;
+    let held = |i: usize, j: usize| if i > 0 { 0.5 * (tau[(i - 1) * n + j] + tau[i * n + j]) } else { tau[j] };
+    let sampled = |i: usize, j: usize| match i > 0 && i + 1 < len {
+        true => 0.25 * (tau[(i - 1) * n + j] + 2.0 * tau[i * n + j] + tau[(i + 1) * n + j]),
+        false => tau[i * n + j],
+    };
+    let central = |x: &[f64], i: usize, j: usize| match i > 0 && i + 1 < len {
+        true => (x[(i + 1) * n + j] - x[(i - 1) * n + j]) / (2.0 * dt),
+        false => 0.0,
+    };
+    // (q, qd, coulomb, held, sampled), each `[sample][joint]`.
+    let (q, qd, coulomb, pairs): (std::borrow::Cow<[f64]>, Vec<f64>, Vec<f64>, [Vec<f64>; 2]) = match source {
+        VelocitySource::Logged => {
+            let each = |f: &dyn Fn(usize, usize) -> f64| (0..len * n).map(|k| f(k / n, k % n)).collect::<Vec<f64>>();
+            let coulomb = seg.qd.iter().map(|&v| sign(v)).collect();
+            (seg.q.as_slice().into(), seg.qd.clone(), coulomb, [each(&held), each(&sampled)])
+        }
+        VelocitySource::Positions => {
+            let q = filter.filtfilt_columns(&seg.q, n);
+            let qd: Vec<f64> = (0..len * n).map(|k| central(&q, k / n, k % n)).collect();
+            // The Coulomb column and both pairings through the same filter, side by side: `[sample][3 x joint]`. The
+            // sampled pairing is the logged effort itself, the filter being zero-phase as the 1-2-1 average is; the
+            // held one keeps its half-sample shift.
+            let mut rows = Vec::with_capacity(3 * n * len);
+            for i in 0..len {
+                rows.extend((0..n).map(|j| sign(qd[i * n + j])));
+                rows.extend((0..n).map(|j| held(i, j)));
+                rows.extend_from_slice(&tau[i * n..(i + 1) * n]);
+            }
+            let rows = filter.filtfilt_columns(&rows, 3 * n);
+            let part = |p: usize| -> Vec<f64> {
+                rows.chunks_exact(3 * n).flat_map(|r| r[p * n..(p + 1) * n].iter().copied()).collect()
+            };
+            (q.into(), qd, part(0), [part(1), part(2)])
+        }
+    };
     let mut out = Conditioned {
         joints: n,
         dt,
@@ -266,39 +316,19 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
             VelocitySource::Positions => (2.0 / (cutoff * dt)).ceil() as usize,
         },
     };
-    for j in 0..n {
-        let tau = column(&seg.tau, j);
-        let held: Vec<f64> = (0..len).map(|i| if i > 0 { 0.5 * (tau[i - 1] + tau[i]) } else { tau[i] }).collect();
-        let sampled: Vec<f64> = (0..len)
-            .map(|i| if i > 0 && i + 1 < len { 0.25 * (tau[i - 1] + 2.0 * tau[i] + tau[i + 1]) } else { tau[i] })
-            .collect();
-        let (q, qd, pairs, coulomb) = match source {
-            VelocitySource::Logged => {
-                let qd = column(&seg.qd, j);
-                let coulomb = qd.iter().map(|&v| sign(v)).collect::<Vec<_>>();
-                (column(&seg.q, j), qd, [held, sampled], coulomb)
-            }
-            VelocitySource::Positions => {
-                let q = filter.filtfilt(&column(&seg.q, j));
-                let qd: Vec<f64> = (0..len)
-                    .map(|i| if i > 0 && i + 1 < len { (q[i + 1] - q[i - 1]) / (2.0 * dt) } else { 0.0 })
-                    .collect();
-                let coulomb = filter.filtfilt(&qd.iter().map(|&v| sign(v)).collect::<Vec<_>>());
-                (q, qd, [filter.filtfilt(&held), filter.filtfilt(&tau)], coulomb)
-            }
-        };
-        for i in 1..len.saturating_sub(1) {
+    for i in 1..len.saturating_sub(1) {
+        for j in 0..n {
             let k = i * n + j;
-            out.q[k] = q[i];
-            out.qd[k] = qd[i];
+            out.q[k] = q[k];
+            out.qd[k] = qd[k];
             out.qdd[k] = match source {
-                VelocitySource::Logged => (qd[i + 1] - qd[i - 1]) / (2.0 * dt),
-                VelocitySource::Positions => (q[i + 1] - 2.0 * q[i] + q[i - 1]) / (dt * dt),
+                VelocitySource::Logged => central(&qd, i, j),
+                VelocitySource::Positions => (q[k + n] - 2.0 * q[k] + q[k - n]) / (dt * dt),
             };
-            out.v[k] = (q[i + 1] - q[i - 1]) / (2.0 * dt);
-            out.coulomb[k] = coulomb[i];
-            out.tau[0][k] = pairs[0][i];
-            out.tau[1][k] = pairs[1][i];
+            out.v[k] = central(&q, i, j);
+            out.coulomb[k] = coulomb[k];
+            out.tau[0][k] = pairs[0][k];
+            out.tau[1][k] = pairs[1][k];
         }
     }
     out
@@ -383,37 +413,72 @@ impl Butterworth {
         Butterworth { sections: [section(q1), section(q2)], pad }
     }
 
-    fn run(&self, x: &mut [f64]) {
-        for [b0, b1, b2, a1, a2] in self.sections {
-            // Start in the steady state of the first value, so a constant passes unchanged.
-            let x0 = x[0];
-            let y0 = x0 * (b0 + b1 + b2) / (1.0 + a1 + a2);
-            let (mut x1, mut x2, mut y1, mut y2) = (x0, x0, y0, y0);
-            for v in x.iter_mut() {
-                let y = b0 * *v + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
-                (x2, x1, y2, y1) = (x1, *v, y1, y);
-                *v = y;
-            }
-        }
-    }
-
     /// `x` filtered forward and backward. A line passes unchanged once the start has been forgotten (see `new`): the
     /// odd reflection continues a linear trend across the ends.
     pub fn filtfilt(&self, x: &[f64]) -> Vec<f64> {
-        let len = x.len();
+        self.filtfilt_columns(x, 1)
+    }
+
+    /// [`Self::filtfilt`] of each of the `channels` signals interleaved in `x` (sample `i` of signal `c` at
+    /// `x[i * channels + c]`, the layout of a log's joints), in that layout. One sweep takes every signal and both
+    /// sections: their recursions are independent, so the core overlaps them instead of waiting on each in turn (an
+    /// hour's log is filtered tens of times over).
+    pub fn filtfilt_columns(&self, x: &[f64], channels: usize) -> Vec<f64> {
+        let len = x.len() / channels.max(1);
         if len < 3 {
             return x.to_vec();
         }
         let pad = self.pad.min(len - 1);
-        let mut y = Vec::with_capacity(len + 2 * pad);
-        y.extend((1..=pad).rev().map(|i| 2.0 * x[0] - x[i]));
+        let at = |i: usize| &x[i * channels..(i + 1) * channels];
+        let mut y = Vec::with_capacity((len + 2 * pad) * channels);
+        for i in (1..=pad).rev() {
+            y.extend(at(0).iter().zip(at(i)).map(|(a, b)| 2.0 * a - b));
+        }
         y.extend_from_slice(x);
-        y.extend((1..=pad).map(|i| 2.0 * x[len - 1] - x[len - 1 - i]));
-        self.run(&mut y);
-        y.reverse();
-        self.run(&mut y);
-        y.reverse();
-        y[pad..pad + len].to_vec()
+        for i in 1..=pad {
+            y.extend(at(len - 1).iter().zip(at(len - 1 - i)).map(|(a, b)| 2.0 * a - b));
+        }
+        self.sweep(&mut y, channels, false);
+        self.sweep(&mut y, channels, true);
+        y.drain(..pad * channels);
+        y.truncate(len * channels);
+        y
+    }
+
+    /// Both sections over the rows of `y` (`channels` signals interleaved), first to last or last to first. Each
+    /// section starts in the steady state of its first input, so a constant passes unchanged.
+    fn sweep(&self, y: &mut [f64], channels: usize, backward: bool) {
+        let rows = y.len() / channels;
+        let [s, t] = self.sections;
+        let steady = |[b0, b1, b2, a1, a2]: [f64; 5], x0: f64| x0 * (b0 + b1 + b2) / (1.0 + a1 + a2);
+        // (x[i-1], x[i-2], y[i-1], y[i-2]) of a section, updated by its input `v`; its output.
+        let step = |[b0, b1, b2, a1, a2]: [f64; 5], st: &mut [f64; 4], v: f64| {
+            let [x1, x2, y1, y2] = *st;
+            let out = b0 * v + b1 * x1 + b2 * x2 - a1 * y1 - a2 * y2;
+            *st = [v, x1, out, y1];
+            out
+        };
+        let row = |i: usize| if backward { rows - 1 - i } else { i };
+        let first = row(0) * channels;
+        let mut states: Vec<([f64; 4], [f64; 4])> = y[first..first + channels]
+            .iter_mut()
+            .map(|v| {
+                let u0 = steady(s, *v);
+                let mut a = [*v, *v, u0, u0];
+                let mid = step(s, &mut a, *v);
+                let w0 = steady(t, mid);
+                let mut b = [mid, mid, w0, w0];
+                *v = step(t, &mut b, mid);
+                (a, b)
+            })
+            .collect();
+        for i in 1..rows {
+            let r = row(i) * channels;
+            for (v, (a, b)) in y[r..r + channels].iter_mut().zip(&mut states) {
+                let mid = step(s, a, *v);
+                *v = step(t, b, mid);
+            }
+        }
     }
 }
 
@@ -441,6 +506,23 @@ mod tests {
         let yl = f.filtfilt(&line);
         let err = yl.iter().zip(&line).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         assert!(err < 1e-8, "a line changed by {err}");
+    }
+
+    #[test]
+    fn signals_filtered_side_by_side_are_each_filtered_alone() {
+        // Interleaved, as a log's joints are: every signal to the last bit as if it were alone, the ends included.
+        let f = Butterworth::new(15.0, 1e-3);
+        let signals: Vec<Vec<f64>> = (0..3)
+            .map(|c| {
+                (0..700).map(|i| ((i * (c + 3)) as f64 * 0.01).sin() + if i % 7 == c { 0.1 } else { 0.0 }).collect()
+            })
+            .collect();
+        let rows: Vec<f64> = (0..700).flat_map(|i| signals.iter().map(move |s| s[i])).collect();
+        let together = f.filtfilt_columns(&rows, 3);
+        for (c, s) in signals.iter().enumerate() {
+            let alone = f.filtfilt(s);
+            assert!(together.iter().skip(c).step_by(3).zip(&alone).all(|(a, b)| a.to_bits() == b.to_bits()), "{c}");
+        }
     }
 
     #[test]

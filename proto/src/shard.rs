@@ -152,10 +152,14 @@ impl<'a> Reader<'a> {
         Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
     }
     fn str(&mut self) -> Result<&'a str, CdrError> {
+        let text = self.raw_str()?;
+        std::str::from_utf8(text).map_err(|e| CdrError(format!("string is not UTF-8: {e}")))
+    }
+    /// A string's bytes, its terminating NUL left out, not yet checked to be UTF-8.
+    fn raw_str(&mut self) -> Result<&'a [u8], CdrError> {
         let n = self.u32()? as usize;
         let bytes = self.take(n)?;
-        let text = bytes.strip_suffix(&[0]).unwrap_or(bytes);
-        std::str::from_utf8(text).map_err(|e| CdrError(format!("string is not UTF-8: {e}")))
+        Ok(bytes.strip_suffix(&[0]).unwrap_or(bytes))
     }
     fn string(&mut self) -> Result<String, CdrError> {
         self.str().map(str::to_string)
@@ -241,11 +245,17 @@ impl JointStateDecoder {
         if count > buf.len() {
             return Err(CdrError(format!("{count} joint names cannot fit in {} bytes", buf.len())));
         }
-        let names = (0..count).map(|_| r.str()).collect::<Result<Vec<&str>, _>>()?;
+        // The previous message's names, byte for byte (a UTF-8 string equal to a valid one is valid), before any
+        // are parsed: an hour's log repeats them millions of times.
+        let start = r.pos;
         let name = match &self.names {
-            Some(last) if last.iter().map(String::as_str).eq(names.iter().copied()) => last.clone(),
+            Some(last) if last.len() == count && last.iter().all(|n| r.raw_str().is_ok_and(|b| b == n.as_bytes())) => {
+                last.clone()
+            }
             _ => {
-                let fresh: std::sync::Arc<[String]> = names.iter().map(|n| n.to_string()).collect();
+                r.pos = start;
+                let fresh: std::sync::Arc<[String]> =
+                    (0..count).map(|_| r.str().map(str::to_string)).collect::<Result<_, _>>()?;
                 self.names = Some(fresh.clone());
                 fresh
             }
@@ -292,6 +302,33 @@ mod tests {
         assert_eq!(&b[68..76], &[0, 0, 0, 0, 2, 0, 0, 0]);
         assert_eq!(&b[84..92], &(-0.5f64).to_le_bytes());
         assert_eq!(decode_joint_state(&b).unwrap(), m);
+    }
+
+    #[test]
+    fn a_decoder_shares_names_that_repeat_and_notices_names_that_change() {
+        let message = |names: &[&str]| {
+            let m = JointState {
+                name: names.iter().map(|n| n.to_string()).collect(),
+                position: vec![0.5; names.len()],
+                ..Default::default()
+            };
+            encode_joint_state(&m)
+        };
+        let mut decoder = JointStateDecoder::default();
+        let first = decoder.decode(&message(&["j0", "j1"])).unwrap();
+        let again = decoder.decode(&message(&["j0", "j1"])).unwrap();
+        assert!(std::sync::Arc::ptr_eq(&first.name, &again.name));
+        // The same count and length, one byte apart; then one name fewer.
+        let changed = decoder.decode(&message(&["j0", "j2"])).unwrap();
+        assert_eq!(&changed.name[..], ["j0", "j2"]);
+        let fewer = decoder.decode(&message(&["j0"])).unwrap();
+        assert_eq!(&fewer.name[..], ["j0"]);
+        assert_eq!(fewer.position, [0.5]);
+        // A name that is not UTF-8 is refused even right after a valid list of the same length.
+        let mut bad = message(&["j0", "j1"]);
+        let at = bad.windows(3).rposition(|w| w == b"j1\0").unwrap();
+        bad[at] = 0xff;
+        assert!(decoder.decode(&bad).is_err());
     }
 
     #[test]

@@ -71,19 +71,7 @@ pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
 /// `/robot_description` of whichever file has one, metadata of all; CRC-checked if every file was).
 pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
     let files = log_files(path)?;
-    let mut bag = dynforge_shard::read(&files[0])?;
-    let mut rest = Vec::with_capacity(files.len() - 1);
-    for file in &files[1..] {
-        rest.push(dynforge_shard::read(file)?);
-    }
-    // One allocation for every file's messages (an hour's log holds millions).
-    bag.joint_states.reserve_exact(rest.iter().map(|b| b.joint_states.len()).sum());
-    for more in rest {
-        bag.joint_states.extend(more.joint_states);
-        bag.robot_description = more.robot_description.or(bag.robot_description);
-        bag.metadata.extend(more.metadata);
-        bag.crc_checked &= more.crc_checked;
-    }
+    let bag = dynforge_shard::read_joined(&files)?;
     Ok((files, bag))
 }
 

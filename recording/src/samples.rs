@@ -90,9 +90,10 @@ fn joint_states(
     let (mut stamps, mut q, mut qd, mut tau) =
         (Vec::with_capacity(messages), vec![0.0; messages * n], vec![0.0; messages * n], vec![0.0; messages * n]);
     let mut columns: Vec<usize> = Vec::with_capacity(n);
-    let mut last_layout: Option<&[String]> = None;
+    let mut last_layout: Option<&std::sync::Arc<[String]>> = None;
     for (k, m) in bag.joint_states.iter().enumerate() {
-        if last_layout != Some(&m.name[..]) {
+        // Messages that name the same joints share one list (the decoder's): a pointer says so without a comparison.
+        if !last_layout.is_some_and(|last| std::sync::Arc::ptr_eq(last, &m.name) || **last == *m.name) {
             columns.clear();
             for want in names {
                 let c = m.name.iter().position(|have| have == want).ok_or_else(|| {
@@ -100,7 +101,7 @@ fn joint_states(
                 })?;
                 columns.push(c);
             }
-            last_layout = Some(&m.name[..]);
+            last_layout = Some(&m.name);
         }
         let pick = |v: &[f64], what: &str, out: &mut [f64]| -> Result<(), SamplesError> {
             if v.len() != m.name.len() {

@@ -181,8 +181,22 @@ pub struct Bag {
 
 /// Reads a shard or a ROS 2 bag. Truncated or corrupt files are errors naming the file, never panics.
 pub fn read(path: &Path) -> Result<Bag, ShardError> {
-    let bytes = std::fs::read(path).map_err(io_err(path))?;
-    read_bytes(&bytes, path)
+    read_joined(&[path])
+}
+
+/// Reads the files of one log as one bag, as a recorder splits it (a rosbag2 directory's files, in recording order):
+/// the messages of all in order, the last `/robot_description` of any, the metadata of all (a later file's name
+/// over an earlier's), CRC-checked if every file was. Each file's bytes are dropped once it is decoded, and every
+/// message is moved once, into a vector sized once: an hour of log is millions of messages, and each copy of them
+/// faults in and zeroes hundreds of megabytes more.
+pub fn read_joined(paths: &[impl AsRef<Path>]) -> Result<Bag, ShardError> {
+    let mut parts = Vec::with_capacity(paths.len());
+    for path in paths {
+        let path = path.as_ref();
+        let bytes = std::fs::read(path).map_err(io_err(path))?;
+        parts.push(read_parts(&bytes, path)?);
+    }
+    Ok(assemble(parts))
 }
 
 /// The CRC the writer put in the file's DataEnd record (MCAP's `data_section_crc`: every byte from the leading magic
@@ -237,10 +251,37 @@ struct CrcMismatch {
 
 /// Like [`read`], from memory; `path` only labels errors.
 pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
+    Ok(assemble(vec![read_parts(bytes, path)?]))
+}
+
+/// A file decoded, its messages still chunk by chunk.
+struct Parts {
+    decoded: Vec<Vec<Decoded>>,
+    metadata: Metadata,
+    crc_checked: bool,
+}
+
+/// The bag of the files `parts`, in order (see [`read_joined`]).
+fn assemble(parts: Vec<Parts>) -> Bag {
+    let mut bag = Bag { crc_checked: !parts.is_empty() && parts.iter().all(|p| p.crc_checked), ..Bag::default() };
+    bag.joint_states.reserve_exact(parts.iter().flat_map(|p| &p.decoded).map(Vec::len).sum());
+    for part in parts {
+        for d in part.decoded.into_iter().flatten() {
+            match d {
+                Decoded::JointState(m) => bag.joint_states.push(m),
+                Decoded::Description(text) => bag.robot_description = Some(text),
+            }
+        }
+        bag.metadata.extend(part.metadata);
+    }
+    bag
+}
+
+/// The messages and metadata of the file `bytes` (`path` labels errors).
+fn read_parts(bytes: &[u8], path: &Path) -> Result<Parts, ShardError> {
     let me = mcap_err(path);
     let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
     let crc_checked = check_data_section(bytes).map_err(|e| content(e.to_string()))?;
-    let mut bag = Bag { crc_checked, ..Bag::default() };
     let summary = mcap::read::Summary::read(bytes).map_err(&me)?;
     let decoded = match summary.as_ref().filter(|s| !s.chunk_indexes.is_empty() && !top_level_messages(bytes)) {
         Some(summary) => read_chunks(bytes, summary, path)?,
@@ -251,32 +292,26 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
             for message in stream {
                 out.extend(decode(&message.map_err(&me)?, path, &mut decoder)?);
             }
-            out
+            vec![out]
         }
     };
-    bag.joint_states.reserve(decoded.len());
-    for d in decoded {
-        match d {
-            Decoded::JointState(m) => bag.joint_states.push(m),
-            Decoded::Description(text) => bag.robot_description = Some(text),
-        }
-    }
+    let mut metadata = Metadata::default();
     match summary {
         Some(summary) => {
             for index in &summary.metadata_indexes {
                 let m = mcap::read::metadata(bytes, index).map_err(&me)?;
-                bag.metadata.insert(m.name, m.metadata);
+                metadata.insert(m.name, m.metadata);
             }
         }
         None => {
             for record in mcap::read::LinearReader::new(bytes).map_err(&me)? {
                 if let mcap::records::Record::Metadata(m) = record.map_err(&me)? {
-                    bag.metadata.insert(m.name, m.metadata);
+                    metadata.insert(m.name, m.metadata);
                 }
             }
         }
     }
-    Ok(bag)
+    Ok(Parts { decoded, metadata, crc_checked })
 }
 
 /// A message of a topic dynforge reads.
@@ -317,9 +352,9 @@ fn top_level_messages(bytes: &[u8]) -> bool {
     records.into_iter().any(|r| matches!(r, Ok(mcap::records::Record::Message { .. }) | Err(_)))
 }
 
-/// The messages of every chunk of an indexed file (channels from its summary), in file order, the chunks
-/// decompressed and decoded side by side: most of the time spent reading a long log.
-fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Result<Vec<Decoded>, ShardError> {
+/// The messages of every chunk of an indexed file (channels from its summary), chunk by chunk in file order, the
+/// chunks decompressed and decoded side by side: most of the time spent reading a long log.
+fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Result<Vec<Vec<Decoded>>, ShardError> {
     let me = mcap_err(path);
     let mut indexes = summary.chunk_indexes.clone();
     indexes.sort_by_key(|i| i.chunk_start_offset);
@@ -330,14 +365,7 @@ fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Resu
         }
         Ok(out)
     });
-    let parts: Vec<Vec<Decoded>> = parts.into_iter().collect::<Result<_, _>>()?;
-    // Sized once: an hour of log is millions of messages, and growing by doubling copies them and faults in the
-    // pages twice over.
-    let mut out = Vec::with_capacity(parts.iter().map(Vec::len).sum());
-    for part in parts {
-        out.extend(part);
-    }
-    Ok(out)
+    parts.into_iter().collect()
 }
 
 #[cfg(test)]
