@@ -276,12 +276,12 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
         true => (x[(i + 1) * n + j] - x[(i - 1) * n + j]) / (2.0 * dt),
         false => 0.0,
     };
-    // (q, qd, coulomb, held, sampled), each `[sample][joint]`.
-    let (q, qd, coulomb, pairs): (std::borrow::Cow<[f64]>, Vec<f64>, Vec<f64>, [Vec<f64>; 2]) = match source {
+    // (the filtered positions if any, qd, coulomb, [held, sampled]), each `[sample][joint]`.
+    let (filtered, qd, coulomb, pairs) = match source {
         VelocitySource::Logged => {
             let each = |f: &dyn Fn(usize, usize) -> f64| (0..len * n).map(|k| f(k / n, k % n)).collect::<Vec<f64>>();
             let coulomb = seg.qd.iter().map(|&v| sign(v)).collect();
-            (seg.q.as_slice().into(), seg.qd.clone(), coulomb, [each(&held), each(&sampled)])
+            (None, seg.qd.clone(), coulomb, [each(&held), each(&sampled)])
         }
         VelocitySource::Positions => {
             let q = filter.filtfilt_columns(&seg.q, n);
@@ -299,9 +299,10 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
             let part = |p: usize| -> Vec<f64> {
                 rows.chunks_exact(3 * n).flat_map(|r| r[p * n..(p + 1) * n].iter().copied()).collect()
             };
-            (q.into(), qd, part(0), [part(1), part(2)])
+            (Some(q), qd, part(0), [part(1), part(2)])
         }
     };
+    let q = filtered.as_deref().unwrap_or(&seg.q);
     let mut out = Conditioned {
         joints: n,
         dt,
@@ -325,7 +326,7 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
                 VelocitySource::Logged => central(&qd, i, j),
                 VelocitySource::Positions => (q[k + n] - 2.0 * q[k] + q[k - n]) / (dt * dt),
             };
-            out.v[k] = central(&q, i, j);
+            out.v[k] = central(q, i, j);
             out.coulomb[k] = coulomb[k];
             out.tau[0][k] = pairs[0][k];
             out.tau[1][k] = pairs[1][k];

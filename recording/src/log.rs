@@ -140,8 +140,9 @@ fn log_welded(
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
     let (trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
     // The messages take several times the memory of the samples (an hour at 1 kHz: gigabytes, millions of blocks):
-    // freed on a thread of their own while the segments are cut and the work goes on.
-    std::thread::spawn(move || drop(bag));
+    // freed on a thread of their own while the segments are cut and the work goes on (here, if no thread can be
+    // started: the refused closure is dropped, and the messages with it).
+    let _ = std::thread::Builder::new().name("free-messages".into()).spawn(move || drop(bag));
     let (dt, segments) = segments(trajectory, &mut notes);
     if segments.is_empty() {
         return Err(content(format!("no stretch of {MIN_SEGMENT} or more evenly stamped samples")));
