@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use dynforge_proto::shard::JointState;
 use dynforge_shard::Bag;
 
 /// Samples of a robot's joints: row-major `[t][joint]` arrays in the model's joint order.
@@ -85,52 +86,28 @@ fn joint_states(
     }
     let n = names.len();
     // Stamps, and position, velocity and effort of each message in the model's joint order, as flat columns (an
-    // hour's log holds millions of messages: no allocation per message).
+    // hour's log holds millions of messages: no allocation per message), a stretch of messages per core.
     let messages = bag.joint_states.len();
     let (mut stamps, mut q, mut qd, mut tau) =
-        (Vec::with_capacity(messages), vec![0.0; messages * n], vec![0.0; messages * n], vec![0.0; messages * n]);
-    let mut columns: Vec<usize> = Vec::with_capacity(n);
-    let mut last_layout: Option<&std::sync::Arc<[String]>> = None;
-    for (k, m) in bag.joint_states.iter().enumerate() {
-        // Messages that name the same joints share one list (the decoder's): a pointer says so without a comparison.
-        if !last_layout.is_some_and(|last| std::sync::Arc::ptr_eq(last, &m.name) || **last == *m.name) {
-            columns.clear();
-            for want in names {
-                let c = m.name.iter().position(|have| have == want).ok_or_else(|| {
-                    err(format!("joint_states message {k} has no joint '{want}' (it has {:?})", m.name))
-                })?;
-                columns.push(c);
-            }
-            last_layout = Some(&m.name);
-        }
-        let pick = |v: &[f64], what: &str, out: &mut [f64]| -> Result<(), SamplesError> {
-            if v.len() != m.name.len() {
-                return Err(err(format!(
-                    "joint_states message {k}: {} {what} values for {} joints",
-                    v.len(),
-                    m.name.len()
-                )));
-            }
-            // Drivers that do not measure a quantity often publish NaN for it; nothing downstream can use a
-            // non-finite sample, and silently dropping it would bias the log.
-            if let Some((&c, want)) = columns.iter().zip(names).find(|&(&c, _)| !v[c].is_finite()) {
-                return Err(err(format!(
-                    "joint_states message {k} (t = {:.6} s): {what} of joint '{want}' is {} (dynforge needs measured \
-                     position, velocity and effort for every joint)",
-                    m.stamp_ns() as f64 * 1e-9,
-                    v[c]
-                )));
-            }
-            out.iter_mut().zip(&columns).for_each(|(o, &c)| *o = v[c]);
-            Ok(())
-        };
-        let at = k * n..(k + 1) * n;
-        if with_velocity {
-            pick(&m.velocity, "velocity", &mut qd[at.clone()])?;
-        }
-        pick(&m.position, "position", &mut q[at.clone()])?;
-        pick(&m.effort, "effort", &mut tau[at])?;
-        stamps.push(m.stamp_ns());
+        (vec![0; messages], vec![0.0; messages * n], vec![0.0; messages * n], vec![0.0; messages * n]);
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let per = messages.div_ceil(threads).max(1);
+    let results: Vec<Result<(), String>> = std::thread::scope(|scope| {
+        let stretches = bag.joint_states.chunks(per).zip(stamps.chunks_mut(per));
+        let columns = q.chunks_mut(per * n).zip(qd.chunks_mut(per * n)).zip(tau.chunks_mut(per * n));
+        let handles: Vec<_> = stretches
+            .zip(columns)
+            .enumerate()
+            .map(|(i, ((msgs, stamps), ((q, qd), tau)))| {
+                let out = Columns { stamps, q, qd: with_velocity.then_some(qd), tau };
+                scope.spawn(move || pick_columns(msgs, i * per, names, out))
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
+    });
+    // The first stretch's error is the first message's that has one.
+    if let Some(problem) = results.into_iter().find_map(Result::err) {
+        return Err(err(problem));
     }
     // In stamp order (stable: a repeated stamp keeps its first message).
     let mut order: Vec<usize> = (0..messages).collect();
@@ -161,6 +138,63 @@ fn joint_states(
         (out.q, out.qd, out.tau) = (pick(&q), pick(&qd), pick(&tau));
     }
     Ok((out, with_velocity))
+}
+
+/// Where [`pick_columns`] writes a stretch of messages: their stamps [ns] and `[message][joint]` values (no
+/// velocity when the log has none).
+struct Columns<'a> {
+    stamps: &'a mut [i64],
+    q: &'a mut [f64],
+    qd: Option<&'a mut [f64]>,
+    tau: &'a mut [f64],
+}
+
+/// The stamps and the joints `names`' values of `messages` (the log's from message `first` on) into `out`; the
+/// first message's problem if one has none.
+fn pick_columns(messages: &[JointState], first: usize, names: &[String], mut out: Columns) -> Result<(), String> {
+    let n = names.len();
+    let mut columns: Vec<usize> = Vec::with_capacity(n);
+    let mut last_layout: Option<&std::sync::Arc<[String]>> = None;
+    for (i, m) in messages.iter().enumerate() {
+        let k = first + i;
+        // Messages that name the same joints share one list (the decoder's): a pointer says so without a comparison.
+        if !last_layout.is_some_and(|last| std::sync::Arc::ptr_eq(last, &m.name) || **last == *m.name) {
+            columns.clear();
+            for want in names {
+                let c =
+                    m.name.iter().position(|have| have == want).ok_or_else(|| {
+                        format!("joint_states message {k} has no joint '{want}' (it has {:?})", m.name)
+                    })?;
+                columns.push(c);
+            }
+            last_layout = Some(&m.name);
+        }
+        let pick = |v: &[f64], what: &str, out: &mut [f64]| -> Result<(), String> {
+            if v.len() != m.name.len() {
+                return Err(format!("joint_states message {k}: {} {what} values for {} joints", v.len(), m.name.len()));
+            }
+            // Drivers that do not measure a quantity often publish NaN for it; nothing downstream can use a
+            // non-finite sample, and silently dropping it would bias the log.
+            if let Some((&c, want)) = columns.iter().zip(names).find(|&(&c, _)| !v[c].is_finite()) {
+                return Err(format!(
+                    "joint_states message {k} (t = {:.6} s): {what} of joint '{want}' is {} (dynforge needs measured \
+                     position, velocity and effort for every joint)",
+                    m.stamp_ns() as f64 * 1e-9,
+                    v[c]
+                ));
+            }
+            out.iter_mut().zip(&columns).for_each(|(o, &c)| *o = v[c]);
+            Ok(())
+        };
+        let at = i * n..(i + 1) * n;
+        if let Some(qd) = out.qd.as_deref_mut() {
+            pick(&m.velocity, "velocity", &mut qd[at.clone()])?;
+        }
+        pick(&m.position, "position", &mut out.q[at.clone()])?;
+        pick(&m.effort, "effort", &mut out.tau[at])?;
+        out.stamps[i] = m.stamp_ns();
+    }
+    Ok(())
 }
 
 /// The median of `values` (the upper one of an even count: the element a sort would put at `len / 2`), found by
@@ -236,6 +270,12 @@ mod tests {
         let e =
             from_bag(&Bag { joint_states: vec![short], ..Bag::default() }, &names, Path::new("r.mcap")).unwrap_err();
         assert!(e.to_string().contains("1 effort values for 2 joints"), "{e}");
+        // Read a stretch per core, the first message with a problem is the one named.
+        let mut log: Vec<JointState> = (0..9).map(|k| message(k * 1_000_000, &["j0", "j7"], 0.0)).collect();
+        log[8].position[0] = f64::INFINITY;
+        log[2].position[1] = f64::NAN;
+        let e = from_bag(&Bag { joint_states: log, ..Bag::default() }, &names, Path::new("r.mcap")).unwrap_err();
+        assert!(e.to_string().contains("message 2 (t = 0.002000 s): position of joint 'j7' is NaN"), "{e}");
     }
 
     #[test]
