@@ -312,11 +312,7 @@ fn search(
     let n = start.len() / (COORDINATES + NF);
     let precision = prior.precision();
     let scale = prior.marginal_std();
-    let objective = |x: &DVector<f64>| {
-        let pi = DVector::from_vec(parameters(n, x));
-        let z = prior.whiten(x);
-        data.cost(&pi) + 0.5 * z.dot(&z)
-    };
+    let objective = |x: &DVector<f64>| posterior_cost(data, prior, x, &DVector::from_vec(parameters(n, x)));
     let mut x = start.clone();
     let mut f = objective(&x);
     let mut lambda = 1e-3;
@@ -485,9 +481,16 @@ impl Objective<'_> {
             x.rows_mut(COORDINATES * l, COORDINATES).copy_from_slice(&theta);
         }
         x.rows_mut(COORDINATES * n, NF * n).copy_from_slice(&pi[NI * n..]);
-        let z = self.prior.whiten(&x);
-        Some(self.data.cost(&DVector::from_column_slice(pi)) + 0.5 * z.dot(&z))
+        Some(posterior_cost(&self.data, self.prior, &x, &DVector::from_column_slice(pi)))
     }
+}
+
+/// The objective every search minimizes and every optimum is compared by: the data's cost at the parameters `pi`
+/// plus half the whitened prior distance of their coordinates `x` (the same point twice over, so that neither map
+/// is made again where the caller has both).
+fn posterior_cost(data: &Data, prior: &CoordinatePrior, x: &DVector<f64>, pi: &DVector<f64>) -> f64 {
+    let z = prior.whiten(x);
+    data.cost(pi) + 0.5 * z.dot(&z)
 }
 
 /// A symmetric positive definite matrix `H` as `D S D` with `D = diag(H)^-1/2` (unit diagonal `S`): the torques and
