@@ -510,18 +510,21 @@ impl Scaled {
         Scaled { d, s, eigen: std::cell::OnceCell::new() }
     }
 
-    /// `S`'s eigenvectors and eigenvalues.
+    /// `S`'s eigenvectors and eigenvalues, the eigenvalues held above rounding (`1e-15` of the largest).
     fn eigen(&self) -> Result<&(DMatrix<f64>, Vec<f64>), IdentifyError> {
         if self.eigen.get().is_none() {
+            let (vectors, mut values) = crate::solve::eigen(&self.s)?;
+            let top = values.iter().fold(0.0f64, |m, v| m.max(*v));
+            values.iter_mut().for_each(|v| *v = v.max(1e-15 * top));
             // Unset until now, so this cannot fail.
-            let _ = self.eigen.set(crate::solve::eigen(&self.s)?);
+            let _ = self.eigen.set((vectors, values));
         }
         Ok(self.eigen.get().expect("the decomposition was just made"))
     }
 
     /// `(H + lambda diag(H))^-1 g`: the scaled matrix gains `lambda` on its (unit) diagonal. A Cholesky solve (a
     /// tenth of a decomposition's work: the search makes one or more per iteration, eight starts over), or the
-    /// decomposition's with eigenvalues held above rounding.
+    /// decomposition's.
     fn solve(&self, g: &DVector<f64>, lambda: f64) -> Result<DVector<f64>, IdentifyError> {
         let rhs = g.component_mul(&self.d);
         let shifted = &self.s + DMatrix::from_diagonal_element(self.s.nrows(), self.s.ncols(), lambda);
@@ -530,16 +533,14 @@ impl Scaled {
         }
         let (vectors, values) = self.eigen()?;
         let proj = vectors.transpose() * rhs;
-        let top = values.iter().fold(0.0f64, |m, v| m.max(*v));
-        let y = DVector::from_fn(proj.len(), |k, _| proj[k] / (values[k].max(1e-15 * top) + lambda));
+        let y = DVector::from_fn(proj.len(), |k, _| proj[k] / (values[k] + lambda));
         Ok((vectors * y).component_mul(&self.d))
     }
 
     /// `H^-1`.
     fn inverse(&self) -> Result<DMatrix<f64>, IdentifyError> {
         let (vectors, values) = self.eigen()?;
-        let top = values.iter().fold(0.0f64, |m, v| m.max(*v));
-        let inv = DVector::from_iterator(values.len(), values.iter().map(|v| 1.0 / v.max(1e-15 * top)));
+        let inv = DVector::from_iterator(values.len(), values.iter().map(|v| 1.0 / v));
         let s_inv = vectors * DMatrix::from_diagonal(&inv) * vectors.transpose();
         Ok(DMatrix::from_fn(s_inv.nrows(), s_inv.ncols(), |i, j| s_inv[(i, j)] * self.d[i] * self.d[j]))
     }
