@@ -7,7 +7,7 @@
 //! noise draw), so that the parameters the torques decide are as many draws as the nominals.
 //!
 //! Usage: DYNFORGE_PYTHON=.venv/bin/python dynforge-bench-identify-coverage [--nominals N] [--seconds S]
-//! [--spread X] [--dump FILE]
+//! [--spread X] [--arm ur5|panda] [--dump FILE]
 //!
 //! Or on a robot's family (`generate --urdf`, simulated by dynforge's own engine, noise-free): each variant
 //! identified from the family's URDF with the family's spread, from its first log and from all its logs, against the
@@ -24,6 +24,7 @@ use dynforge_identify::calibrate::identify_read;
 use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
 use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
+use dynforge_identify::standard::COORDINATES;
 use dynforge_proto::spread::Spread;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{Log, read_log, read_logs};
@@ -100,7 +101,8 @@ fn arm_coverage(
                     }
                     add(&mut zs, &id, &at_truth);
                     if let Some(out) = dump.as_mut() {
-                        write_dump(out, &format!("{} {kind:?}", arm.name), i, &id, &at_truth)?;
+                        let distance = prior_distance(&nominal, &prior, spread)?;
+                        write_dump(out, &format!("{} {kind:?}", arm.name), i, (&id, &at_truth), Some(&distance))?;
                     }
                 }
                 Err(e) => {
@@ -137,19 +139,37 @@ fn bag_like(logs: &[Log], noise: f64) -> Degradation {
 
 /// Every parameter of a variant's identification, a line each: case, robot, name, what decided it, z, value, truth,
 /// std, prior std, and the identification's iterations and torque NRMSE (calibrated, least squares).
+/// Per link (by name), the truth's squared whitened distance under the prior the calibration was given: a chi-square
+/// with 10 degrees of freedom where the truth is what that prior says it might be.
+type PriorDistance = BTreeMap<String, f64>;
+
+fn prior_distance(nominal: &dynforge_robot::Model, truth: &CoordinatePrior, spread: Spread) -> Result<PriorDistance> {
+    let z = CoordinatePrior::of(nominal, spread)?.whiten(&truth.mean);
+    Ok(nominal
+        .links()
+        .iter()
+        .enumerate()
+        .map(|(l, link)| (link.name.clone(), z.rows(COORDINATES * l, COORDINATES).norm_squared()))
+        .collect())
+}
+
+/// A line per parameter: case, robot, name, what decided it, z, value, truth, spread, prior spread, iterations, the
+/// calibration's and least squares' NRMSE, and (real arms) the truth's [`PriorDistance`] for the parameter's link.
 fn write_dump(
     out: &mut impl std::io::Write,
     case: &str,
     robot: u64,
-    id: &Identification,
-    truth: &Identification,
+    (id, truth): (&Identification, &Identification),
+    distance: Option<&PriorDistance>,
 ) -> Result<()> {
     for (p, t) in id.parameters().into_iter().zip(truth.parameters()) {
         let e = p.estimate;
         let z = e.z(t.estimate.value);
+        let link = p.name.rsplit_once('.').map_or("", |(link, _)| link);
+        let d = distance.and_then(|d| d.get(link)).map_or(f64::NAN, |d| *d);
         writeln!(
             out,
-            "{case}\t{robot}\t{}\t{:?}\t{z}\t{}\t{}\t{}\t{}\t{}\t{}\t{}",
+            "{case}\t{robot}\t{}\t{:?}\t{z}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{d}",
             p.name,
             e.decided,
             e.value,
@@ -211,7 +231,7 @@ fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) ->
                     at_truth.report_values_of(&truth);
                     add(&mut zs, &id, &at_truth);
                     if let Some(out) = dump.as_mut() {
-                        write_dump(out, case, *r, &id, &at_truth)?;
+                        write_dump(out, case, *r, (&id, &at_truth), None)?;
                     }
                     used += 1;
                 }
@@ -231,6 +251,7 @@ fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut nominals, mut seconds, mut spread) = (20u64, 30.0, Options::default().spread);
     let (mut family, mut robots, mut fixed, mut noise, mut dump) = (None, 100u64, Vec::new(), 0.0, None);
+    let mut arms = vec![&UR5, &PANDA];
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
         match a.as_str() {
@@ -241,6 +262,13 @@ fn main() -> Result<()> {
             "--robots" => robots = value()?.parse()?,
             "--fix" => fixed.push(value()?),
             "--noise" => noise = value()?.parse()?,
+            "--arm" => {
+                let name = value()?;
+                arms = [&UR5, &PANDA].into_iter().filter(|a| a.name == name).collect();
+                if arms.is_empty() {
+                    bail!("--arm {name}: the arms are {} and {}", UR5.name, PANDA.name);
+                }
+            }
             "--dump" => {
                 let path = value()?;
                 dump = Some(std::io::BufWriter::new(std::fs::File::create(&path).with_context(|| path.clone())?));
@@ -261,9 +289,8 @@ fn main() -> Result<()> {
     );
     println!("| case | parameters | decided by | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
     println!("|---|---|---|---|---|---|---|");
-    let result = [&UR5, &PANDA]
-        .into_iter()
-        .try_for_each(|arm| arm_coverage(&py, &dir, arm, (nominals, seconds, spread), &mut dump));
+    let result =
+        arms.into_iter().try_for_each(|arm| arm_coverage(&py, &dir, arm, (nominals, seconds, spread), &mut dump));
     std::fs::remove_dir_all(&dir)?;
     result
 }
