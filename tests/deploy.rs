@@ -247,6 +247,18 @@ fn merge_log(root: &Path, id: &str) -> String {
     std::fs::read_to_string(root.join(format!("dynforge-merge-{id}.log"))).unwrap_or_default()
 }
 
+/// The logs of job array `id`'s tasks, each under its name: what a failed assertion on its merge job shows (a merge
+/// job cancelled by its dependency has no log of its own).
+fn array_logs(root: &Path, id: &str) -> String {
+    let prefix = format!("dynforge-generate-{id}_");
+    let mut names: Vec<_> = std::fs::read_dir(root)
+        .map(|d| d.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+        .unwrap_or_default();
+    names.retain(|n: &String| n.starts_with(&prefix));
+    names.sort();
+    names.iter().map(|n| format!("--- {n}\n{}", std::fs::read_to_string(root.join(n)).unwrap_or_default())).collect()
+}
+
 const TRAIN: &str = "--epochs 1 --generated 1024 --dim 32 --validation 0.34";
 
 /// Items 3, 4 and 13 of issue 24 on the way: the merge job gets the CPUs asked for (`--merge-cpus`, default
@@ -350,7 +362,7 @@ fn a_cancelled_slurm_array_cancels_its_merge_and_a_resubmit_retries_a_failed_tra
     let ids = sandbox.submit(Path::new("/"), root.path(), &[&exe[..], &["--train", &bad]].concat(), &generate);
     sandbox.wait(&ids);
     let log = merge_log(root.path(), &ids[1]);
-    assert_eq!(sandbox.job_field(&ids[1], "JobState"), "FAILED", "{log}");
+    assert_eq!(sandbox.job_field(&ids[1], "JobState"), "FAILED", "{log}\n{}", array_logs(root.path(), &ids[0]));
     assert!(log.contains("merged 3 partitions") && log.contains("--no-such-flag"), "{log}");
     let merged = root.path().join("merged");
     let hashes = shard_hashes(&merged);
