@@ -137,8 +137,6 @@ fn bag_like(logs: &[Log], noise: f64) -> Degradation {
     }
 }
 
-/// Every parameter of a variant's identification, a line each: case, robot, name, what decided it, z, value, truth,
-/// std, prior std, and the identification's iterations and torque NRMSE (calibrated, least squares).
 /// Per link (by name), the truth's squared whitened distance under the prior the calibration was given: a chi-square
 /// with 10 degrees of freedom where the truth is what that prior says it might be.
 type PriorDistance = BTreeMap<String, f64>;
@@ -251,7 +249,8 @@ fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut nominals, mut seconds, mut spread) = (20u64, 30.0, Options::default().spread);
     let (mut family, mut robots, mut fixed, mut noise, mut dump) = (None, 100u64, Vec::new(), 0.0, None);
-    let mut arms = vec![&UR5, &PANDA];
+    let all = [&UR5, &PANDA];
+    let mut arms = all.to_vec();
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
         match a.as_str() {
@@ -264,9 +263,10 @@ fn main() -> Result<()> {
             "--noise" => noise = value()?.parse()?,
             "--arm" => {
                 let name = value()?;
-                arms = [&UR5, &PANDA].into_iter().filter(|a| a.name == name).collect();
+                arms = all.into_iter().filter(|a| a.name == name).collect();
                 if arms.is_empty() {
-                    bail!("--arm {name}: the arms are {} and {}", UR5.name, PANDA.name);
+                    let names: Vec<&str> = all.iter().map(|a| a.name).collect();
+                    bail!("--arm {name}: the arms are {}", names.join(" and "));
                 }
             }
             "--dump" => {
