@@ -150,6 +150,19 @@ impl Sandbox {
             .collect()
     }
 
+    /// The command lines of the sandbox's processes running `dynforge SUBCOMMAND`.
+    fn running(&self, subcommand: &str) -> Vec<String> {
+        self.processes()
+            .into_iter()
+            .filter_map(|pid| std::fs::read(format!("/proc/{pid}/cmdline")).ok())
+            .map(|c| String::from_utf8_lossy(&c).split('\0').map(str::to_string).collect::<Vec<_>>())
+            .filter(|args| {
+                args.first().is_some_and(|a| a.ends_with("dynforge")) && args.get(1).is_some_and(|a| a == subcommand)
+            })
+            .map(|args| args.join(" "))
+            .collect()
+    }
+
     /// `program` run inside the sandbox, in `cwd`.
     fn command(&self, program: impl AsRef<OsStr>, cwd: &Path) -> Command {
         let mut cmd = Command::new("nsenter");
@@ -354,6 +367,9 @@ fn a_cancelled_slurm_array_cancels_its_merge_and_a_resubmit_retries_a_failed_tra
     let gone = sandbox.wait_gone(&ids, Duration::from_secs(120));
     eprintln!("after scancel: the merge job left the queue in {:?}", start.elapsed());
     assert!(gone, "the merge job still waits for the cancelled array");
+    // Gone from the queue is gone: a coordinator Slurm no longer tracks would still hold its partition's lock when
+    // the resubmitted array starts, and refuse it.
+    assert_eq!(sandbox.running("generate"), Vec::<String>::new(), "{}", array_logs(root.path(), &ids[0]));
     assert_eq!(sandbox.job_field(&ids[1], "JobState"), "CANCELLED");
     assert!(!root.path().join("merged").exists());
 
@@ -385,6 +401,51 @@ fn a_cancelled_slurm_array_cancels_its_merge_and_a_resubmit_retries_a_failed_tra
     assert!(log.contains("merged 3 partitions"), "{log}");
     assert_eq!(shard_hashes(&merged), hashes);
     assert!(merged.join("manifest.toml").is_file());
+}
+
+/// scancel of a generating array: a task leaves the queue only once its command has stopped. The command here is a
+/// stand-in for `dynforge` that takes two seconds to stop on SIGTERM, as a coordinator finishing its ledger takes a
+/// moment, and says when it has; Slurm tracks a task's processes by descent, so a command whose script died first
+/// ran on untracked, and the array was "gone" while it still held its partition.
+#[test]
+fn a_cancelled_array_task_leaves_the_queue_only_once_its_command_has_stopped() {
+    if !engines("slurm cancel waits for the command") {
+        return;
+    }
+    let sandbox = Sandbox::start();
+    sandbox.up();
+    let root = tempfile::tempdir().unwrap();
+    let slow = root.path().join("slow-dynforge");
+    std::fs::write(
+        &slow,
+        "#!/bin/sh\n\
+         at=\"$DYNFORGE_ROOT/task-$SLURM_ARRAY_TASK_ID\"\n\
+         trap 'sleep 2; touch \"$at.stopped\"; exit 143' TERM\n\
+         touch \"$at.started\"\n\
+         while :; do sleep 0.1; done\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&slow, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
+    let ids = sandbox.submit(Path::new("/"), root.path(), &["--dynforge", slow.to_str().unwrap(), "--cpus", "1"], &[]);
+    let started = |suffix: &str| -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(root.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter_map(|n| n.strip_suffix(suffix).map(str::to_string))
+            .collect();
+        names.sort();
+        names
+    };
+    let start = Instant::now();
+    while started(".started").is_empty() {
+        assert!(start.elapsed() < Duration::from_secs(60), "no task started");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    ok(sandbox.command("scancel", Path::new("/")).arg(&ids[0]));
+    assert!(sandbox.wait_gone(&ids, Duration::from_secs(120)), "the cancelled array is still queued");
+    let running = started(".started");
+    assert_eq!(started(".stopped"), running, "tasks left the queue before their command stopped");
 }
 
 /// Issue 24, items 5 and 23: `local-cluster.sh up` refuses a slurm.conf it did not write and a daemon it did not

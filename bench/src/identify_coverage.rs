@@ -102,7 +102,14 @@ fn arm_coverage(
                     add(&mut zs, &id, &at_truth);
                     if let Some(out) = dump.as_mut() {
                         let distance = prior_distance(&nominal, &prior, spread)?;
-                        write_dump(out, &format!("{} {kind:?}", arm.name), i, (&id, &at_truth), Some(&distance))?;
+                        let map = prior_distance(&nominal, &CoordinatePrior::of(&id.model, spread)?, spread)?;
+                        write_dump(
+                            out,
+                            &format!("{} {kind:?}", arm.name),
+                            i,
+                            (&id, &at_truth),
+                            Some((&distance, &map)),
+                        )?;
                     }
                 }
                 Err(e) => {
@@ -137,12 +144,14 @@ fn bag_like(logs: &[Log], noise: f64) -> Degradation {
     }
 }
 
-/// Per link (by name), the truth's squared whitened distance under the prior the calibration was given: a chi-square
-/// with 10 degrees of freedom where the truth is what that prior says it might be.
+/// Per link (by name), a point's squared whitened distance under the prior the calibration was given: for the truth,
+/// a chi-square with 10 degrees of freedom where the truth is what that prior says it might be; for the calibrated
+/// values, how far the torques moved the link (whether a link pulled far from its description is where the spreads
+/// miss).
 type PriorDistance = BTreeMap<String, f64>;
 
-fn prior_distance(nominal: &dynforge_robot::Model, truth: &CoordinatePrior, spread: Spread) -> Result<PriorDistance> {
-    let z = CoordinatePrior::of(nominal, spread)?.whiten(&truth.mean);
+fn prior_distance(nominal: &dynforge_robot::Model, at: &CoordinatePrior, spread: Spread) -> Result<PriorDistance> {
+    let z = CoordinatePrior::of(nominal, spread)?.whiten(&at.mean);
     Ok(nominal
         .links()
         .iter()
@@ -152,22 +161,24 @@ fn prior_distance(nominal: &dynforge_robot::Model, truth: &CoordinatePrior, spre
 }
 
 /// A line per parameter: case, robot, name, what decided it, z, value, truth, spread, prior spread, iterations, the
-/// calibration's and least squares' NRMSE, and (real arms) the truth's [`PriorDistance`] for the parameter's link.
+/// calibration's and least squares' NRMSE, and (real arms) the truth's and the calibration's [`PriorDistance`] for
+/// the parameter's link.
 fn write_dump(
     out: &mut impl std::io::Write,
     case: &str,
     robot: u64,
     (id, truth): (&Identification, &Identification),
-    distance: Option<&PriorDistance>,
+    distance: Option<(&PriorDistance, &PriorDistance)>,
 ) -> Result<()> {
     for (p, t) in id.parameters().into_iter().zip(truth.parameters()) {
         let e = p.estimate;
         let z = e.z(t.estimate.value);
         let link = p.name.rsplit_once('.').map_or("", |(link, _)| link);
-        let d = distance.and_then(|d| d.get(link)).map_or(f64::NAN, |d| *d);
+        let of = |d: Option<&PriorDistance>| d.and_then(|d| d.get(link)).map_or(f64::NAN, |d| *d);
+        let (d, m) = (of(distance.map(|d| d.0)), of(distance.map(|d| d.1)));
         writeln!(
             out,
-            "{case}\t{robot}\t{}\t{:?}\t{z}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{d}",
+            "{case}\t{robot}\t{}\t{:?}\t{z}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{d}\t{m}",
             p.name,
             e.decided,
             e.value,
