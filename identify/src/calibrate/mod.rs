@@ -361,6 +361,7 @@ fn fit(
     }
     let optima = consistent::optima(ne, &weights, &prior, solution)?;
     let mut solution = optima.best;
+    let laplace = &solution.covariance + &optima.between;
     // The sandwich sees the residual as it is; a joint whose residual is under the noise floor is taken at the floor,
     // as its weight is (its scores scaled up): an exact simulation's residual is a model's error, not noise.
     let at_floor: Vec<f64> =
@@ -378,6 +379,7 @@ fn fit(
         ls: &ls,
         prior: &prior,
         solution: &solution,
+        laplace: &laplace,
         noise,
         correlation,
         convention,

@@ -175,6 +175,9 @@ pub(crate) struct Fitted<'a> {
     pub ls: &'a LeastSquares,
     pub prior: &'a CoordinatePrior,
     pub solution: &'a Solution,
+    /// The Laplace covariance at the solution (plus the other optima's spread), beside the solution's own (the
+    /// sandwich's): a link's spreads are the larger of the two ([`Identification::new`]).
+    pub laplace: &'a DMatrix<f64>,
     pub noise: Vec<f64>,
     pub correlation: Vec<f64>,
     pub convention: EffortConvention,
@@ -207,6 +210,16 @@ fn reported_std(theta: &[f64], cov: &DMatrix<f64>) -> [f64; 10] {
     std::array::from_fn(|r| c[(r, r)].max(0.0).sqrt())
 }
 
+/// A link's reported standard deviations at `theta`: the larger of the sandwich's (`sandwich`) and the Laplace
+/// covariance's (`laplace`), each parameter on its own. The sandwich's meat is measured from a few hundred blocks of
+/// the residual, and a covariance measured so is too small in some directions by its own sampling error (the Panda's
+/// noisy inertias: 2 points within two standard deviations, docs/notes.md); where the model's covariance is wider,
+/// it is kept. Friction is not a link's: there the sandwich is what corrects for a coloured residual.
+fn link_std(theta: &[f64], sandwich: &DMatrix<f64>, laplace: &DMatrix<f64>) -> [f64; 10] {
+    let (s, l) = (reported_std(theta, sandwich), reported_std(theta, laplace));
+    std::array::from_fn(|k| s[k].max(l[k]))
+}
+
 impl Identification {
     pub(crate) fn new(f: Fitted) -> Self {
         let n = f.model.dof();
@@ -221,7 +234,7 @@ impl Identification {
                 let theta = &x.as_slice()[link_coordinate(l, 0)..link_coordinate(l + 1, 0)];
                 let theta0 = &f.prior.mean.as_slice()[link_coordinate(l, 0)..link_coordinate(l + 1, 0)];
                 let (value, urdf) = (reported(theta), reported(theta0));
-                let std = reported_std(theta, &block(&f.solution.covariance, l));
+                let std = link_std(theta, &block(&f.solution.covariance, l), &block(f.laplace, l));
                 let prior_std = reported_std(theta0, &block(&prior_cov, l));
                 let e = |k: usize| Estimated::new(value[k], std[k], urdf[k], prior_std[k]);
                 LinkEstimate {
@@ -439,5 +452,29 @@ mod tests {
         assert_eq!(e.decided, Decided::Prior);
         let linear = Estimated::new(2.0, 0.6, 2.5, 1.0);
         assert!((linear.z(2.6) - -1.0).abs() < 1e-12);
+    }
+
+    /// Each reported spread is the larger of the two covariances', parameter by parameter: a covariance wide only in
+    /// the COM's coordinates widens only the COM, one wide only in the mass's widens only the mass.
+    #[test]
+    fn a_link_s_spreads_are_the_larger_of_the_sandwich_s_and_laplace_s_each() {
+        let theta = [0.3, -1.0, -1.2, -1.4, 0.01, -0.02, 0.005, 0.05, -0.02, 0.1];
+        let base = DMatrix::from_diagonal_element(COORDINATES, COORDINATES, 1e-6);
+        let mut com = base.clone();
+        for k in crate::standard::T {
+            com[(k, k)] = 1e-2;
+        }
+        let mut mass = base.clone();
+        mass[(crate::standard::ALPHA, crate::standard::ALPHA)] = 1e-2;
+        let (b, c, m) = (reported_std(&theta, &base), reported_std(&theta, &com), reported_std(&theta, &mass));
+        let got = link_std(&theta, &com, &mass);
+        for k in 0..10 {
+            assert_eq!(got[k], c[k].max(m[k]), "parameter {k}");
+        }
+        // The COM's three from the first, the mass from the second; neither is the narrow one's.
+        for k in 1..4 {
+            assert!(got[k] > 10.0 * b[k] && got[k] == c[k], "COM {k}: {} vs {}", got[k], b[k]);
+        }
+        assert!(got[0] > 10.0 * b[0] && got[0] == m[0], "mass: {} vs {}", got[0], b[0]);
     }
 }
