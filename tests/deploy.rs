@@ -264,12 +264,17 @@ fn merge_log(root: &Path, id: &str) -> String {
 /// job cancelled by its dependency has no log of its own).
 fn array_logs(root: &Path, id: &str) -> String {
     let prefix = format!("dynforge-generate-{id}_");
-    let mut names: Vec<_> = std::fs::read_dir(root)
+    let names = names_in(root).into_iter().filter(|n| n.starts_with(&prefix));
+    names.map(|n| format!("--- {n}\n{}", std::fs::read_to_string(root.join(&n)).unwrap_or_default())).collect()
+}
+
+/// The names of the entries of `dir`, sorted (none if it cannot be read).
+fn names_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
         .map(|d| d.flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect())
         .unwrap_or_default();
-    names.retain(|n: &String| n.starts_with(&prefix));
     names.sort();
-    names.iter().map(|n| format!("--- {n}\n{}", std::fs::read_to_string(root.join(n)).unwrap_or_default())).collect()
+    names
 }
 
 const TRAIN: &str = "--epochs 1 --generated 1024 --dim 32 --validation 0.34";
@@ -427,25 +432,19 @@ fn a_cancelled_array_task_leaves_the_queue_only_once_its_command_has_stopped() {
     .unwrap();
     std::fs::set_permissions(&slow, std::os::unix::fs::PermissionsExt::from_mode(0o755)).unwrap();
     let ids = sandbox.submit(Path::new("/"), root.path(), &["--dynforge", slow.to_str().unwrap(), "--cpus", "1"], &[]);
-    let started = |suffix: &str| -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(root.path())
-            .unwrap()
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter_map(|n| n.strip_suffix(suffix).map(str::to_string))
-            .collect();
-        names.sort();
-        names
+    // The tasks that have written `task-I{suffix}`.
+    let tasks_with = |suffix: &str| -> Vec<String> {
+        names_in(root.path()).iter().filter_map(|n| n.strip_suffix(suffix).map(str::to_string)).collect()
     };
     let start = Instant::now();
-    while started(".started").is_empty() {
+    while tasks_with(".started").is_empty() {
         assert!(start.elapsed() < Duration::from_secs(60), "no task started");
         std::thread::sleep(Duration::from_millis(100));
     }
     ok(sandbox.command("scancel", Path::new("/")).arg(&ids[0]));
     assert!(sandbox.wait_gone(&ids, Duration::from_secs(120)), "the cancelled array is still queued");
-    let running = started(".started");
-    assert_eq!(started(".stopped"), running, "tasks left the queue before their command stopped");
+    let started = tasks_with(".started");
+    assert_eq!(tasks_with(".stopped"), started, "tasks left the queue before their command stopped");
 }
 
 /// Issue 24, items 5 and 23: `local-cluster.sh up` refuses a slurm.conf it did not write and a daemon it did not

@@ -101,15 +101,9 @@ fn arm_coverage(
                     }
                     add(&mut zs, &id, &at_truth);
                     if let Some(out) = dump.as_mut() {
-                        let distance = prior_distance(&nominal, &prior, spread)?;
-                        let map = prior_distance(&nominal, &CoordinatePrior::of(&id.model, spread)?, spread)?;
-                        write_dump(
-                            out,
-                            &format!("{} {kind:?}", arm.name),
-                            i,
-                            (&id, &at_truth),
-                            Some((&distance, &map)),
-                        )?;
+                        let calibrated = CoordinatePrior::of(&id.model, spread)?;
+                        let [truth, map] = prior_distances(&nominal, spread, [&prior, &calibrated])?;
+                        write_dump(out, &format!("{} {kind:?}", arm.name), i, (&id, &at_truth), Some((&truth, &map)))?;
                     }
                 }
                 Err(e) => {
@@ -150,14 +144,22 @@ fn bag_like(logs: &[Log], noise: f64) -> Degradation {
 /// miss).
 type PriorDistance = BTreeMap<String, f64>;
 
-fn prior_distance(nominal: &dynforge_robot::Model, at: &CoordinatePrior, spread: Spread) -> Result<PriorDistance> {
-    let z = CoordinatePrior::of(nominal, spread)?.whiten(&at.mean);
-    Ok(nominal
-        .links()
-        .iter()
-        .enumerate()
-        .map(|(l, link)| (link.name.clone(), z.rows(COORDINATES * l, COORDINATES).norm_squared()))
-        .collect())
+/// The [`PriorDistance`] of each of `points` (their means) under the prior of `nominal`.
+fn prior_distances<const N: usize>(
+    nominal: &dynforge_robot::Model,
+    spread: Spread,
+    points: [&CoordinatePrior; N],
+) -> Result<[PriorDistance; N]> {
+    let prior = CoordinatePrior::of(nominal, spread)?;
+    Ok(points.map(|at| {
+        let z = prior.whiten(&at.mean);
+        nominal
+            .links()
+            .iter()
+            .enumerate()
+            .map(|(l, link)| (link.name.clone(), z.rows(COORDINATES * l, COORDINATES).norm_squared()))
+            .collect()
+    }))
 }
 
 /// A line per parameter: case, robot, name, what decided it, z, value, truth, spread, prior spread, iterations, the
