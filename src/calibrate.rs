@@ -21,6 +21,7 @@ use dynforge_proto::manifest::Partition;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_proto::spread::Spread;
+use dynforge_recording::Reading;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{read_log, read_logs};
 use dynforge_robot::generator::GeneratorConfig;
@@ -31,8 +32,8 @@ use crate::identify::{Output, Signals, read_urdf_file};
 
 #[derive(Args)]
 pub struct CalibrateArgs {
-    /// Logs of the robot running the designed excitations: ROS 2 bags (MCAP files or rosbag2 directories) with
-    /// /joint_states.
+    /// Logs of the robot running the designed excitations: ROS 2 bags with /joint_states (MCAP or sqlite3 .db3
+    /// files, or rosbag2 directories), or tables read by --columns.
     #[arg(required = true)]
     logs: Vec<PathBuf>,
     /// The robot's URDF: the values the calibration starts from and the centre of its family.
@@ -69,7 +70,11 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let (text, source) = read_urdf_file(&args.urdf)?;
     let document = Some((text.as_str(), source.as_str()));
     let fixed: Vec<String> = args.fix.iter().map(|(name, _)| name.clone()).collect();
-    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed };
+    let options = Options {
+        spread: args.spread,
+        conditioning: args.signals.conditioning(),
+        reading: args.signals.reading(&fixed)?,
+    };
 
     // The files first, then the bag: what cannot be used is refused before minutes of simulation.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
@@ -153,7 +158,7 @@ fn family_spreads(
         "degradation": degradation,
         "conditioning": format!("{:?}", options.conditioning),
         "spread": options.spread,
-        "fixed": options.fixed,
+        "fixed": options.reading.fixed,
         "urdf": document.map(|(text, _)| content_hash(text.as_bytes())),
         "version": env!("CARGO_PKG_VERSION"),
     });
@@ -170,14 +175,16 @@ fn family_spreads(
     let (mut pairs, mut refused) = (Vec::new(), 0);
     for (k, (r, mine)) in shards.iter().enumerate() {
         bar.set_position(k as u64);
-        let mut logs = read_logs(mine, document, &options.fixed)?;
+        // The family's shards are torque logs as dynforge writes them, whatever the user's logs are.
+        let shards = Reading::welding(&options.reading.fixed);
+        let mut logs = read_logs(mine, document, &shards)?;
         for (k, log) in logs.iter_mut().enumerate() {
             degradation.apply(log, content_hash(format!("variant {r} log {k}").as_bytes()));
         }
         match identify_read(logs, options) {
             Ok((id, _)) => {
                 let mut truth: Identification = id.clone();
-                truth.report_values_of(&read_log(&mine[0], None, &options.fixed)?.model);
+                truth.report_values_of(&read_log(&mine[0], None, &shards)?.model);
                 pairs.push((id, truth));
             }
             Err(e) => {

@@ -53,12 +53,19 @@ pub struct StatsArgs {
 
 #[derive(Args)]
 pub struct InfoArgs {
-    /// An MCAP log: a dataset shard or a ROS 2 bag (file or rosbag2 directory).
+    /// A log: a dataset shard, a ROS 2 bag (MCAP or sqlite3 .db3 file, or rosbag2 directory), or a table read by
+    /// --columns.
     log: PathBuf,
+    /// The column map of a table (see `dynforge identify --help`).
+    #[arg(long, value_name = "MAP.toml")]
+    columns: Option<PathBuf>,
 }
 
 pub fn info(args: InfoArgs) -> Result<()> {
-    let (files, bag) = dynforge_recording::read_bag(&args.log)?;
+    let columns = args.columns.as_deref().map(dynforge_recording::table::ColumnMap::read).transpose()?;
+    // `info` shows a table's columns as the map reads them; the gains that turn currents into torques are identify's.
+    let how = dynforge_recording::Reading { columns, gains: Some(Vec::new()), ..Default::default() };
+    let (files, bag) = dynforge_recording::read_bag(&args.log, &how)?;
     let info = dynforge_recording::info::Info::of_bag(&args.log, &files, &bag)?;
     print!("{info}");
     let described = matches!(info.robot, Some(Ok(_)));

@@ -8,10 +8,13 @@ use dynforge_identify::calibrate::{Options, calibrate_to_urdf};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::flags::positive;
 use dynforge_proto::spread::Spread;
+use dynforge_recording::Reading;
+use dynforge_recording::table::ColumnMap;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
-    /// Logs of one robot: shards or ROS 2 bags (MCAP files or rosbag2 directories) with /joint_states.
+    /// Logs of one robot: ROS 2 bags with /joint_states (MCAP or sqlite3 .db3 files, or rosbag2 directories), shards,
+    /// or tables (.csv, .tsv, .txt, .dat) read by --columns.
     #[arg(required = true)]
     logs: Vec<PathBuf>,
     /// The robot's URDF, the starting point and prior (default: the first log's /robot_description).
@@ -68,9 +71,32 @@ pub struct Signals {
     /// Low-pass cut-off [Hz] for velocities from positions (default: chosen from the positions' noise).
     #[arg(long, value_parser = positive)]
     cutoff: Option<f64>,
+    /// The column map of logs that are tables: a TOML file naming the time column (and its unit) and each URDF
+    /// joint's position, velocity and effort or current columns (docs/logs.md).
+    #[arg(long, value_name = "MAP.toml")]
+    columns: Option<PathBuf>,
+    /// Joint torque (N m, or N for a prismatic joint) per unit of the logged effort, one per joint in the URDF's
+    /// order (less welded joints): for drivers that log motor currents (A), e.g. Universal Robots'.
+    #[arg(long, value_name = "G1,G2,...", value_delimiter = ',', value_parser = gain)]
+    gains: Option<Vec<f64>>,
+}
+
+/// A drive gain: finite and not zero (a negative one flips a joint's sign convention).
+fn gain(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v != 0.0 => Ok(v),
+        _ => Err("expected a finite, non-zero number".into()),
+    }
 }
 
 impl Signals {
+    /// How the logs are read: the column map (read here, so a bad one is refused before anything runs), the
+    /// gains, and the joints `fixed`.
+    pub fn reading(&self, fixed: &[String]) -> Result<Reading> {
+        let columns = self.columns.as_deref().map(ColumnMap::read).transpose()?;
+        Ok(Reading { columns, gains: self.gains.clone(), fixed: fixed.to_vec() })
+    }
+
     pub fn conditioning(&self) -> Conditioning {
         Conditioning {
             velocity: match self.velocity {
@@ -106,7 +132,11 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
     let out = args.output.path(&args.logs);
     let given = read_urdf(args.urdf.as_deref())?;
     let document = given.as_ref().map(|(text, source)| (text.as_str(), source.as_str()));
-    let options = Options { spread: args.spread, conditioning: args.signals.conditioning(), fixed: args.fix.clone() };
+    let options = Options {
+        spread: args.spread,
+        conditioning: args.signals.conditioning(),
+        reading: args.signals.reading(&args.fix)?,
+    };
     let calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;
     match args.output.json {
         true => println!("{}", serde_json::to_string_pretty(&calibrated.json()?)?),

@@ -82,7 +82,7 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     // A directory is read as a rosbag2 bag, and one without an MCAP file says so.
     let out = dynforge(&["identify", dir.path().to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();
-    assert!(!out.status.success() && err.contains("a directory with no .mcap file"), "{err}");
+    assert!(!out.status.success() && err.contains("a directory with no .mcap or .db3 file"), "{err}");
 
     // An unwritable destination fails cleanly and leaves nothing behind.
     let out = dynforge(&["robot", "--out", dir.path().join("missing/dir/r.urdf").to_str().unwrap()]);

@@ -10,6 +10,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use dynforge_identify::NormalEquations;
+use dynforge_recording::Reading;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::{dynamic_parameters, standard_names, standard_parameters};
 use dynforge_testkit::arms::{Harness, PANDA};
@@ -152,13 +153,18 @@ fn a_family_shard_is_a_physical_variant_of_the_urdf_labelled_with_its_parameters
     let said = String::from_utf8_lossy(&o.stdout);
     assert!(said.contains("identify: yes") && said.contains("estimate: no: a shard of a robot's family"), "{said}");
     let fixed: Vec<String> = ["panda_finger_joint1", "panda_finger_joint2"].map(String::from).to_vec();
-    let nominal =
-        read_log(&first_shard(&out), Some((&std::fs::read_to_string(&urdf).unwrap(), &urdf)), &fixed).unwrap().model;
+    let nominal = read_log(
+        &first_shard(&out),
+        Some((&std::fs::read_to_string(&urdf).unwrap(), &urdf)),
+        &Reading::welding(&fixed),
+    )
+    .unwrap()
+    .model;
     let mut masses = Vec::new();
     for entry in std::fs::read_dir(out.join("shards")).unwrap() {
         let path = entry.unwrap().path();
         // The shard's own URDF (its /robot_description) is the variant.
-        let log = read_log(&path, None, &fixed).unwrap();
+        let log = read_log(&path, None, &Reading::welding(&fixed)).unwrap();
         let model = &log.model;
         assert_eq!(model.dof(), 7);
         // Its labels are the variant's standard parameters, to the digit.

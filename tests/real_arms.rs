@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use common::dynforge;
 use dynforge_identify::calibrate::{Identification, Options, held_out, identify_logs};
 use dynforge_identify::signals::{Conditioning, EffortConvention};
+use dynforge_recording::Reading;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
@@ -38,7 +39,7 @@ fn calibrate(
     let text = std::fs::read_to_string(nominal).unwrap();
     let options = Options {
         conditioning: Conditioning { effort, ..Conditioning::default() },
-        fixed: arm.fixed.iter().map(|s| s.to_string()).collect(),
+        reading: Reading::welding(&arm.fixed.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
         ..Options::default()
     };
     let (id, _) = identify_logs(&[log.to_path_buf()], Some((&text, "nominal.urdf")), &options)
@@ -54,7 +55,7 @@ fn calibrate(
     }
     let truth = std::fs::read_to_string(&f.urdf).unwrap();
     let ne = held_out(&[held.to_path_buf()], Some((&truth, "true.urdf")), &options, &id).unwrap();
-    let true_model = read_log(held, Some((&truth, "true.urdf")), &options.fixed).unwrap().model;
+    let true_model = read_log(held, Some((&truth, "true.urdf")), &options.reading).unwrap().model;
     (id.clone(), ne.mean_nrmse(&dynamic_parameters(&id.model)), ne.mean_nrmse(&dynamic_parameters(&true_model)))
 }
 
@@ -110,7 +111,7 @@ fn a_posterior_with_two_optima_is_reported_with_both() {
     let f = Harness::new(py, tmp.path(), &UR5);
     let noisy = f.log(&UR5, 10, 30.0, "held", LogKind::Noisy, 1000.0);
     let truth_text = std::fs::read_to_string(&f.urdf).unwrap();
-    let truth = read_log(&noisy, Some((&truth_text, "true.urdf")), &[]).unwrap();
+    let truth = read_log(&noisy, Some((&truth_text, "true.urdf")), &Reading::default()).unwrap();
     let spread = Spread::uniform(0.5);
     let mut rng = dynforge_robot::rng::Rng::stream(7, &[9]);
     let nominal = CoordinatePrior::of(&truth.model, spread).unwrap().draw(&truth.model, || rng.normal()).unwrap();

@@ -22,6 +22,7 @@ use anyhow::{Context, Result, bail};
 use dynforge_identify::calibrate::Kind;
 use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_proto::spread::Spread;
+use dynforge_recording::Reading;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::Rng;
@@ -135,7 +136,7 @@ fn arm_case(py: &str, s: &Settings, arm: &Arm, table: &mut Vec<String>) -> Resul
         );
     }
     let truth_text = std::fs::read_to_string(&harness.urdf)?;
-    let truth_log = read_log(&bags[0], Some((&truth_text, "true.urdf")), &fixed)?;
+    let truth_log = read_log(&bags[0], Some((&truth_text, "true.urdf")), &Reading::welding(&fixed))?;
     let names = standard_names(&truth_log.model);
     let mut truth = standard_parameters(&truth_log.model);
     for (name, value) in names.iter().zip(truth.iter_mut()) {

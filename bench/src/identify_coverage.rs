@@ -26,6 +26,7 @@ use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_identify::standard::COORDINATES;
 use dynforge_proto::spread::Spread;
+use dynforge_recording::Reading;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{Log, read_log, read_logs};
 use dynforge_robot::rng::Rng;
@@ -77,12 +78,12 @@ fn arm_coverage(
         // the torques decide would err alike on every nominal, one draw counted thirty times.
         let logs: Vec<_> = (0..nominals).map(|i| harness.log(arm, 1 + i, seconds, "held", kind, 1000.0)).collect();
         let first = logs.first().context("--nominals: at least one")?;
-        let truth = read_log(first, Some((&truth_text, "true.urdf")), &fixed)?;
+        let truth = read_log(first, Some((&truth_text, "true.urdf")), &Reading::welding(&fixed))?;
         let prior = CoordinatePrior::of(&truth.model, spread)?;
         let options = Options {
             spread,
             conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
-            fixed: fixed.clone(),
+            reading: Reading::welding(&fixed),
         };
         let mut zs = Zs::new();
         let mut failed = 0;
@@ -218,7 +219,7 @@ fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) ->
     let options = Options {
         spread: family.spread,
         conditioning: Conditioning { effort: Some(EffortConvention::Held), velocity, ..Conditioning::default() },
-        fixed: fixed.to_vec(),
+        reading: Reading::welding(fixed),
     };
     let shards = shards_by_robot(dir)?;
     for (case, first_only) in [("first log", true), ("all logs", false)] {
@@ -228,8 +229,8 @@ fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) ->
             if first_only {
                 mine.truncate(1);
             }
-            let truth = read_log(&mine[0], None, fixed)?.model;
-            let mut logs = read_logs(&mine, Some((&urdf, "robot.urdf")), fixed)?;
+            let truth = read_log(&mine[0], None, &Reading::welding(fixed))?.model;
+            let mut logs = read_logs(&mine, Some((&urdf, "robot.urdf")), &Reading::welding(fixed))?;
             if noise > 0.0 {
                 let degradation = bag_like(&logs, noise);
                 for (k, log) in logs.iter_mut().enumerate() {

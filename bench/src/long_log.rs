@@ -5,8 +5,12 @@
 //! the `dynforge identify` binary, then the reference beside it: `bench/long_log_reference.py`, Pinocchio's joint
 //! torque regressor and a least-squares solve (numpy) over the same bag.
 //!
+//! The same messages are also written as a ROS 2 Humble bag (rosbag2's sqlite3 storage, split alike) and as one CSV
+//! table with its column map, and `identify` is timed on each, its peak memory measured child by child: what reading
+//! a Humble bag or a table costs beside MCAP.
+//!
 //! Usage: DYNFORGE_PYTHON=.venv/bin/python dynforge-bench-long-log --dynforge target/release/dynforge
-//! [--minutes 60] [--files 6] [--dir DIR] [--reference-minutes M]
+//! [--minutes 60] [--files 6] [--dir DIR] [--reference-minutes M] [--formats mcap,db3,csv]
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -72,7 +76,14 @@ impl Motion {
 }
 
 /// Writes `minutes` of the arm's log as `files` MCAP files `dir/long_K.mcap`; returns the samples written.
-fn write_log(model: &Model, urdf: &str, dir: &Path, minutes: f64, files: usize) -> Result<usize> {
+/// The log's forms written, and where: an MCAP rosbag2 directory always, a sqlite3 one and a table when asked.
+struct Forms<'a> {
+    mcap: &'a Path,
+    db3: Option<&'a Path>,
+    csv: Option<&'a Path>,
+}
+
+fn write_log(model: &Model, urdf: &str, forms: &Forms, minutes: f64, files: usize) -> Result<usize> {
     let n = model.dof();
     let samples = (minutes * 60.0 / DT).round() as usize;
     let mut rng = Rng::stream(1, &[]);
@@ -91,6 +102,15 @@ fn write_log(model: &Model, urdf: &str, dir: &Path, minutes: f64, files: usize) 
     let quantum = std::f64::consts::TAU / COUNTS;
     let per_file = samples.div_ceil(files);
     let mut last = vec![f64::NAN; n];
+    let mut csv = match forms.csv {
+        Some(path) => {
+            write_column_map(model, &path.with_extension("columns.toml"))?;
+            let mut w = std::io::BufWriter::new(std::fs::File::create(path)?);
+            csv_header(&mut w, model)?;
+            Some(w)
+        }
+        None => None,
+    };
     for f in 0..files {
         let range = f * per_file..((f + 1) * per_file).min(samples);
         let mut messages = Vec::with_capacity(range.len());
@@ -116,29 +136,88 @@ fn write_log(model: &Model, urdf: &str, dir: &Path, minutes: f64, files: usize) 
             });
         }
         let content = dynforge_shard::ShardContent { urdf, joint_states: &messages, metadata: &Default::default() };
-        dynforge_shard::write(&dir.join(format!("long_{f}.mcap")), &content)?;
+        dynforge_shard::write(&forms.mcap.join(format!("long_{f}.mcap")), &content)?;
+        if let Some(dir) = forms.db3 {
+            dynforge_recording::sqlite::write(&dir.join(format!("long_{f}.db3")), Some(urdf), &messages)?;
+        }
+        if let Some(csv) = &mut csv {
+            write_rows(csv, &messages)?;
+        }
+    }
+    if let Some(csv) = csv {
+        csv.into_inner().map_err(|e| e.into_error())?.sync_all()?;
     }
     Ok(samples)
 }
 
-/// Peak resident memory of the children waited for so far [MB].
-fn children_peak_mb() -> f64 {
-    // SAFETY: getrusage only writes the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
-    usage.ru_maxrss as f64 / 1024.0
+/// The table's header: `t`, then per joint `NAME.q`, `NAME.qd`, `NAME.effort`.
+fn csv_header(w: &mut impl std::io::Write, model: &Model) -> Result<()> {
+    write!(w, "t")?;
+    for j in model.joints() {
+        write!(w, ",{0}.q,{0}.qd,{0}.effort", j.name)?;
+    }
+    writeln!(w)?;
+    Ok(())
+}
+
+/// `messages` as rows of the table (Rust's shortest round-trip decimal: the same doubles read back).
+fn write_rows(w: &mut impl std::io::Write, messages: &[JointState]) -> Result<()> {
+    for m in messages {
+        write!(w, "{}", m.stamp_ns() as f64 * 1e-9)?;
+        for j in 0..m.name.len() {
+            write!(w, ",{},{},{}", m.position[j], m.velocity[j], m.effort[j])?;
+        }
+        writeln!(w)?;
+    }
+    Ok(())
+}
+
+/// The column map of the table [`write_rows`] writes, by header name.
+fn write_column_map(model: &Model, path: &Path) -> Result<()> {
+    let mut text = String::from("header = true\ntime = { column = \"t\" }\n");
+    for j in model.joints() {
+        let n = &j.name;
+        text += &format!("[joints.{n}]\nposition = \"{n}.q\"\nvelocity = \"{n}.qd\"\neffort = \"{n}.effort\"\n");
+    }
+    std::fs::write(path, text)?;
+    Ok(())
+}
+
+/// Runs `cmd` to its end: its stdout, wall seconds and peak resident memory [MB] (its own, from wait4).
+fn run_measured(cmd: &mut std::process::Command) -> Result<(String, f64, f64)> {
+    use std::io::Read;
+    let start = Instant::now();
+    let mut child = cmd.stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::piped()).spawn()?;
+    let (mut out, mut err) = (child.stdout.take().context("stdout")?, child.stderr.take().context("stderr")?);
+    let reader = std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = err.read_to_string(&mut text);
+        text
+    });
+    let mut stdout = String::new();
+    out.read_to_string(&mut stdout)?;
+    let (mut status, mut usage): (libc::c_int, libc::rusage) = (0, unsafe { std::mem::zeroed() });
+    // SAFETY: wait4 writes only the status and the struct it is given, for a child of ours not yet waited for.
+    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut usage) };
+    let seconds = start.elapsed().as_secs_f64();
+    let stderr = reader.join().unwrap_or_default();
+    if pid < 0 || !libc::WIFEXITED(status) || libc::WEXITSTATUS(status) != 0 {
+        bail!("{cmd:?} failed: {stderr}");
+    }
+    Ok((stdout, seconds, usage.ru_maxrss as f64 / 1024.0))
 }
 
 const USAGE: &str = "usage: dynforge-bench-long-log --dynforge RELEASE_BINARY [--minutes 60] [--files 6] [--dir DIR] \
-                     [--reference-minutes M]\n\
+                     [--reference-minutes M] [--formats mcap,db3,csv]\n\
 Synthesizes an hour-long 1 kHz Panda log (1 % effort noise, 2^17-count encoders, velocity differenced), times \
-`dynforge identify` on it and a Pinocchio + numpy least-squares reference on the same log, the first M minutes of \
+`dynforge identify` on it (as MCAP, and as a sqlite3 bag and a CSV table when --formats names them) and a Pinocchio + numpy least-squares reference on the same log, the first M minutes of \
 it with --reference-minutes M (0: no reference; it takes ~3 minutes for the hour) (DYNFORGE_PYTHON: the venv of \
 scripts/venv.sh); prints both per sample, side by side.";
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
     let (mut minutes, mut files, mut dir, mut dynforge, mut reference) = (60.0, 6, None, None, None);
+    let mut formats = vec!["mcap".to_string(), "db3".into(), "csv".into()];
     while let Some(a) = args.next() {
         let mut value = || args.next().with_context(|| format!("{a} needs a value"));
         match a.as_str() {
@@ -147,6 +226,7 @@ fn main() -> Result<()> {
             "--dir" => dir = Some(PathBuf::from(value()?)),
             "--dynforge" => dynforge = Some(PathBuf::from(value()?)),
             "--reference-minutes" => reference = Some(value()?.parse::<f64>()?),
+            "--formats" => formats = value()?.split(',').map(str::to_string).collect(),
             "-h" | "--help" => {
                 println!("{USAGE}");
                 return Ok(());
@@ -163,40 +243,56 @@ fn main() -> Result<()> {
     let model = dynforge_robot::urdf::parse_welded(&urdf, &harness.urdf, &welds)?;
     let dir = dir.unwrap_or_else(|| std::env::temp_dir().join("dynforge-long-log"));
     let bag = dir.join("long");
+    let (db3, csv) = (dir.join("long-db3"), dir.join("long.csv"));
     std::fs::create_dir_all(&bag)?;
+    std::fs::create_dir_all(&db3)?;
+    let wants = |f: &str| formats.iter().any(|x| x == f);
+    let forms =
+        Forms { mcap: &bag, db3: wants("db3").then_some(db3.as_path()), csv: wants("csv").then_some(csv.as_path()) };
     let start = Instant::now();
-    let samples = write_log(&model, &urdf, &bag, minutes, files)?;
+    let samples = write_log(&model, &urdf, &forms, minutes, files)?;
     eprintln!(
         "wrote {samples} samples of {} joints in {files} files in {:.1} s",
         model.dof(),
         start.elapsed().as_secs_f64()
     );
 
-    let start = Instant::now();
-    let out = std::process::Command::new(&dynforge)
-        .arg("identify")
-        .arg(&bag)
-        .args(["--effort", "sampled", "--out"])
-        .arg(dir.join("long.calibrated.urdf"))
-        .output()?;
-    let seconds = start.elapsed().as_secs_f64();
-    if !out.status.success() {
-        bail!("identify failed: {}", String::from_utf8_lossy(&out.stderr));
+    let columns = csv.with_extension("columns.toml");
+    let runs: Vec<(&str, &Path, Vec<&str>)> = [
+        ("mcap", bag.as_path(), vec![]),
+        ("db3", db3.as_path(), vec![]),
+        ("csv", csv.as_path(), vec!["--columns", columns.to_str().context("a UTF-8 path")?]),
+    ]
+    .into_iter()
+    .filter(|(f, _, _)| wants(f))
+    .collect();
+    let mut first: Option<(f64, f64, Vec<u8>)> = None;
+    for (form, log, extra) in runs {
+        let out_urdf = dir.join(format!("long-{form}.calibrated.urdf"));
+        let mut cmd = std::process::Command::new(&dynforge);
+        cmd.arg("identify").arg(log).args(["--urdf", &harness.urdf, "--effort", "sampled", "--out"]);
+        cmd.arg(&out_urdf).args(extra);
+        let (stdout, seconds, peak) = run_measured(&mut cmd)?;
+        let lines: Vec<&str> = stdout.lines().filter(|l| l.contains("NRMSE") || l.contains("samples")).collect();
+        println!("{}", lines.join("\n"));
+        let written = std::fs::read(&out_urdf)?;
+        let versus = match &first {
+            Some((s, p, urdf)) => format!(
+                " ({:.2}x the time, {:.2}x the memory of MCAP; URDF {})",
+                seconds / s,
+                peak / p,
+                if *urdf == written { "byte-identical" } else { "DIFFERENT" }
+            ),
+            None => String::new(),
+        };
+        println!(
+            "identify {form}: {minutes} min of 1 kHz x {} joints in {seconds:.2} s wall ({:.2} us per sample), peak RSS \
+             {peak:.0} MB{versus}",
+            model.dof(),
+            1e6 * seconds / samples as f64
+        );
+        first.get_or_insert((seconds, peak, written));
     }
-    let peak = children_peak_mb();
-    println!(
-        "{}",
-        String::from_utf8_lossy(&out.stdout)
-            .lines()
-            .filter(|l| l.contains("NRMSE") || l.contains("samples"))
-            .collect::<Vec<_>>()
-            .join("\n")
-    );
-    println!(
-        "identify: {minutes} min of 1 kHz x {} joints in {seconds:.2} s wall ({:.2} us per sample), peak RSS {peak:.0} MB",
-        model.dof(),
-        1e6 * seconds / samples as f64
-    );
 
     if reference == Some(0.0) {
         return Ok(());

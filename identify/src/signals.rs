@@ -111,15 +111,13 @@ pub struct VelocityChoice {
     pub reason: String,
 }
 
-/// Samples per torque row: signals low-passed at `cutoff` hold nothing that rows [`ROWS_PER_CUTOFF_PERIOD`] times
+/// Samples per torque row: signals low-passed at `cutoff` (from positions or a logged velocity) hold nothing that rows [`ROWS_PER_CUTOFF_PERIOD`] times
 /// per period of the cut-off miss (the filtered noise is as band-limited as the motion), so a 1 kHz log filtered at
 /// 25 Hz is summed every 10th sample at a tenth of the cost and the same estimate; unfiltered signals (the logged
 /// velocity) carry white effort noise that every sample averages, and are summed whole.
 pub fn row_step(source: VelocitySource, cutoff: Option<f64>, dt: f64) -> usize {
     match (source, cutoff) {
-        (VelocitySource::Positions, Some(fc)) if fc * dt > 0.0 => {
-            ((1.0 / (ROWS_PER_CUTOFF_PERIOD * fc * dt)).floor() as usize).max(1)
-        }
+        (_, Some(fc)) if fc * dt > 0.0 => ((1.0 / (ROWS_PER_CUTOFF_PERIOD * fc * dt)).floor() as usize).max(1),
         _ => 1,
     }
 }
@@ -171,6 +169,67 @@ fn difference_share(seg: &JointTrajectory) -> f64 {
         }
     }
     hits as f64 / total.max(1) as f64
+}
+
+/// The velocity source and its low-pass cut-off for `segments` (on the grid `dt`; `logged`: whether the log has a
+/// velocity), as `asked` names them or as the logs' noise decides, with the reason. A logged velocity is a
+/// measurement with noise of its own: differentiated as it is, white noise of `s` gives the acceleration noise of
+/// `s sqrt(6) / dt`, so it is low-passed like the positions (zero-phase, the effort with it) at the cut-off its
+/// noise allows, unless that is above any the log could use (a velocity measured cleanly). Where both could serve,
+/// the one whose noise allows the higher cut-off (less of the motion smoothed away) is taken.
+pub fn choose_signals(
+    segments: &[&JointTrajectory],
+    dt: f64,
+    logged: bool,
+    asked: &Conditioning,
+) -> (VelocitySource, Option<f64>, String) {
+    let (source, reason) = choose_velocity(segments[0], logged, asked.velocity);
+    let positions = || asked.cutoff.unwrap_or_else(|| choose_cutoff(segments, dt));
+    if source == VelocitySource::Positions {
+        return (source, Some(positions()), reason);
+    }
+    if let Some(fc) = asked.cutoff {
+        return (source, Some(fc), reason);
+    }
+    let Some(own) = velocity_cutoff(segments, dt) else {
+        return (source, None, format!("{reason}; its noise is below what any cut-off would remove"));
+    };
+    let evidence = |fp: f64| format!("the logged velocity's noise allows {own:.1} Hz, the positions' {fp:.1} Hz");
+    match asked.velocity {
+        Some(_) => (source, Some(own), format!("{reason}; its noise allows {own:.1} Hz")),
+        None => match positions() {
+            fp if fp > own => (VelocitySource::Positions, Some(fp), evidence(fp)),
+            fp => (source, Some(own), evidence(fp)),
+        },
+    }
+}
+
+/// The low-pass cut-off [Hz] at which the logged velocity's white noise leaves the acceleration within
+/// [`ACCELERATION_NOISE`] of its own spread (the most noisy joint's), or `None` when that is above the highest
+/// cut-off the log could use: white noise of variance `s^2` differentiated below `fc` has the variance
+/// `(2 pi)^2 (2 s^2 / fs) fc^3 / 3`. The noise is the median absolute second difference over `0.6745 sqrt(6)`.
+fn velocity_cutoff(segments: &[&JointTrajectory], dt: f64) -> Option<f64> {
+    let fs = 1.0 / dt;
+    let hi = (CUTOFF_SHARE * fs).min(CUTOFF_RANGE.1);
+    let n = segments.first().map_or(0, |s| s.joints());
+    let accs = acceleration_spread(segments, dt, (CUTOFF_RANGE.0 * 2.5).min(hi));
+    let mut best = f64::INFINITY;
+    for (j, &acc) in accs.iter().enumerate().take(n) {
+        let mut d2: Vec<f64> = segments
+            .iter()
+            .flat_map(|s| {
+                (2..s.len()).map(move |i| (s.qd[i * n + j] - 2.0 * s.qd[(i - 1) * n + j] + s.qd[(i - 2) * n + j]).abs())
+            })
+            .collect();
+        let Some(median) = dynforge_recording::samples::median(&mut d2) else { continue };
+        let sigma = median / (0.6745 * 6f64.sqrt());
+        if sigma <= 0.0 || acc <= 0.0 {
+            continue;
+        }
+        let allowed = (ACCELERATION_NOISE * acc).powi(2);
+        best = best.min((allowed * 3.0 * fs / ((2.0 * std::f64::consts::PI).powi(2) * 2.0 * sigma * sigma)).cbrt());
+    }
+    (best < hi).then(|| best.max(CUTOFF_RANGE.0))
 }
 
 /// The low-pass cut-off [Hz] for differentiating the positions of the segments (see the module documentation).
@@ -259,11 +318,13 @@ fn acceleration_spread(segments: &[&JointTrajectory], dt: f64, fc: f64) -> Vec<f
     (0..n).map(|j| (sum2[j] / c - (sum[j] / c).powi(2)).max(0.0).sqrt()).collect()
 }
 
-/// A segment conditioned for identification: velocity from `source`, both effort pairings.
+/// A segment conditioned for identification: velocity from `source`, both effort pairings; low-passed at `cutoff`
+/// (the positions always, a logged velocity when `cutoff` is finite).
 pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> Conditioned {
     let n = seg.joints();
     let len = seg.len();
     let dt = if len > 1 { (seg.t[len - 1] - seg.t[0]) / (len - 1) as f64 } else { 0.0 };
+    let filtered = source == VelocitySource::Positions || cutoff < f64::MAX;
     let filter = Butterworth::new(cutoff, dt);
     // Row-major `[sample][joint]` throughout, as the log holds them: every joint filtered in one sweep.
     let tau = &seg.tau;
@@ -277,15 +338,18 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
         false => 0.0,
     };
     // (the filtered positions if any, qd, coulomb, [held, sampled]), each `[sample][joint]`.
-    let (filtered, qd, coulomb, pairs) = match source {
-        VelocitySource::Logged => {
+    let (filtered_q, qd, coulomb, pairs) = match filtered {
+        false => {
             let each = |f: &dyn Fn(usize, usize) -> f64| (0..len * n).map(|k| f(k / n, k % n)).collect::<Vec<f64>>();
             let coulomb = seg.qd.iter().map(|&v| sign(v)).collect();
             (None, seg.qd.clone(), coulomb, [each(&held), each(&sampled)])
         }
-        VelocitySource::Positions => {
+        true => {
             let q = filter.filtfilt_columns(&seg.q, n);
-            let qd: Vec<f64> = (0..len * n).map(|k| central(&q, k / n, k % n)).collect();
+            let qd: Vec<f64> = match source {
+                VelocitySource::Positions => (0..len * n).map(|k| central(&q, k / n, k % n)).collect(),
+                VelocitySource::Logged => filter.filtfilt_columns(&seg.qd, n),
+            };
             // The Coulomb column and both pairings through the same filter, side by side: `[sample][3 x joint]`. The
             // sampled pairing is the logged effort itself, the filter being zero-phase as the 1-2-1 average is; the
             // held one keeps its half-sample shift.
@@ -302,7 +366,7 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
             (Some(q), qd, part(0), [part(1), part(2)])
         }
     };
-    let q = filtered.as_deref().unwrap_or(&seg.q);
+    let q = filtered_q.as_deref().unwrap_or(&seg.q);
     let mut out = Conditioned {
         joints: n,
         dt,
@@ -312,9 +376,9 @@ pub fn condition(seg: &JointTrajectory, source: VelocitySource, cutoff: f64) -> 
         v: vec![0.0; n * len],
         coulomb: vec![0.0; n * len],
         tau: [vec![0.0; n * len], vec![0.0; n * len]],
-        rest_margin: match source {
-            VelocitySource::Logged => 0,
-            VelocitySource::Positions => (2.0 / (cutoff * dt)).ceil() as usize,
+        rest_margin: match filtered {
+            false => 0,
+            true => (2.0 / (cutoff * dt)).ceil() as usize,
         },
     };
     for i in 1..len.saturating_sub(1) {
@@ -370,14 +434,14 @@ pub fn effort_noise(segments: &[&JointTrajectory]) -> Vec<(f64, f64)> {
 }
 
 /// The factor by which conditioning scales white effort noise (its standard deviation): the pairing's average of
-/// neighbouring efforts, and the filter's noise bandwidth when the velocity comes from positions.
+/// neighbouring efforts, and the filter's noise bandwidth when the signals are low-passed.
 pub fn noise_gain(source: VelocitySource, cutoff: Option<f64>, convention: EffortConvention, dt: f64) -> f64 {
     let pairing = match convention {
         EffortConvention::Held => 0.5f64.sqrt(),
         EffortConvention::Sampled => (6.0f64 / 16.0).sqrt(),
     };
     match (source, cutoff) {
-        (VelocitySource::Positions, Some(fc)) => {
+        (_, Some(fc)) => {
             let f = Butterworth::new(fc, dt);
             let len = 2 * f.pad + 1;
             let mut impulse = vec![0.0; len];

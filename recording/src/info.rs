@@ -8,7 +8,7 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 
 use dynforge_shard::Bag;
 
-use crate::read::{Gap, ReadError, first_gap, read_bag};
+use crate::read::{Gap, ReadError, Reading, first_gap, read_bag};
 
 /// A log's summary.
 #[derive(Debug, Clone)]
@@ -28,6 +28,8 @@ pub struct Info {
     pub gaps: Option<(Gap, usize)>,
     /// What vouches for the file's content.
     pub check: Check,
+    /// The logger's stale repeats and missed ticks (when every message names the same joints).
+    pub clock: Option<crate::samples::Clock>,
 }
 
 /// What vouches for a log's content: a shard's labels are outside the chunks the MCAP reader checks.
@@ -42,9 +44,9 @@ pub enum Check {
 }
 
 impl Info {
-    /// Reads `path`: an MCAP file, or a rosbag2 directory holding one.
-    pub fn of(path: &Path) -> Result<Info, ReadError> {
-        let (files, bag) = read_bag(path)?;
+    /// Reads `path`: an MCAP or sqlite3 file, a rosbag2 directory holding them, or a table read as `how` says.
+    pub fn of(path: &Path, how: &Reading) -> Result<Info, ReadError> {
+        let (files, bag) = read_bag(path, how)?;
         Info::of_bag(path, &files, &bag)
     }
 
@@ -69,6 +71,10 @@ impl Info {
             let n = t.windows(2).filter(|w| w[1] - w[0] > crate::log::GAP_PERIODS * g.period).count();
             (g, n)
         });
+        let clock = bag
+            .joint_states
+            .first()
+            .and_then(|m| Some(crate::samples::from_bag_any_velocity(bag, &m.name, &files[0]).ok()?.0.clock()));
         let bytes = files.iter().map(|f| std::fs::metadata(f).map_or(0, |m| m.len())).sum();
         let file = if files.len() == 1 { files[0].clone() } else { path.to_path_buf() };
         let stamps: Vec<f64> = bag.joint_states.iter().map(|m| m.stamp_ns() as f64 * 1e-9).collect();
@@ -88,6 +94,7 @@ impl Info {
             metadata: bag.metadata.iter().map(|(k, v)| (k.clone(), v.clone().into_iter().collect())).collect(),
             gaps,
             check,
+            clock,
         })
     }
 }
@@ -123,6 +130,14 @@ impl std::fmt::Display for Info {
                 "Gaps:        {n} (the first {:.3} s long, after t = {:.3} s): `identify` reads the stretches apart; \
                  `estimate` and `train` refuse the log",
                 g.length, g.after
+            )?;
+        }
+        if let Some(c) = self.clock.filter(|c| c.repeats + c.skipped > 0) {
+            writeln!(
+                f,
+                "Clock:       {} stale sample(s) (exact repeats of the one before while moving: left out), {} missed \
+                 tick(s) (steps of two or more periods: interpolated over)",
+                c.repeats, c.skipped
             )?;
         }
         let check = match self.check {

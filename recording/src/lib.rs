@@ -1,4 +1,5 @@
-//! A robot's joint recording: `/joint_states` of a dataset shard or of any ROS 2 bag (MCAP), joints matched by name
+//! A robot's joint recording: `/joint_states` of a dataset shard, of any ROS 2 bag (MCAP or sqlite3 storage) or of
+//! a table read by its column map ([`table`]), joints matched by name
 //! to the robot's model ([`samples`]), put on the uniform 1 kHz grid that identification and the trainer work on
 //! ([`resample`]), with the robot and, for dataset shards, the labels and robot id ([`read`]). [`dataset`] lists
 //! the shards of a run directory (or any folder of shards), also while a generation is still adding them.
@@ -15,10 +16,12 @@ pub mod log;
 mod read;
 pub mod resample;
 pub mod samples;
+pub mod sqlite;
+pub mod table;
 
 pub use dynforge_shard::Bag;
 pub use read::{
-    GRID_DT, Gap, ReadError, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,
-    recording_of, robot_document,
+    GRID_DT, Gap, ReadError, Reading, Recording, check_not_an_input, first_gap, log_files, read, read_bag,
+    read_shard_bytes, recording_of, robot_document,
 };
 pub use samples::JointTrajectory;

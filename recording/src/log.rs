@@ -10,7 +10,7 @@ use dynforge_robot::Model;
 use dynforge_robot::urdf::{self, Welds};
 use dynforge_shard::Bag;
 
-use crate::read::{ReadError, read_bag};
+use crate::read::{ReadError, Reading, read_bag};
 use crate::resample::resample;
 use crate::samples::{JointTrajectory, from_bag_any_velocity};
 
@@ -59,22 +59,17 @@ impl Log {
 }
 
 /// Reads the log `path` (a file or a rosbag2 directory) for identification. The robot is the URDF `document` (text,
-/// source) when given, else the log's `/robot_description`; the joints named in `fixed` are welded at their mean
-/// logged position.
-pub fn read_log(path: &Path, document: Option<(&str, &str)>, fixed: &[String]) -> Result<Log, ReadError> {
-    let (files, bag) = read_bag(path)?;
-    log_of(files, bag, document, fixed)
+/// source) when given, else the log's `/robot_description`; read as `how` says (the joints it fixes are welded at
+/// their mean logged position).
+pub fn read_log(path: &Path, document: Option<(&str, &str)>, how: &Reading) -> Result<Log, ReadError> {
+    let (files, bag) = read_bag(path, how)?;
+    log_of(files, bag, document, how)
 }
 
 /// [`read_log`] of a log already read: its `files` and their messages `bag` (consumed: an hour's messages take
 /// gigabytes, freed before the segments are cut).
-pub fn log_of(
-    files: Vec<PathBuf>,
-    bag: Bag,
-    document: Option<(&str, &str)>,
-    fixed: &[String],
-) -> Result<Log, ReadError> {
-    log_welded(files, bag, document, fixed, None)
+pub fn log_of(files: Vec<PathBuf>, bag: Bag, document: Option<(&str, &str)>, how: &Reading) -> Result<Log, ReadError> {
+    log_welded(files, bag, document, how, None)
 }
 
 /// [`log_of`] with the welded joints at the positions `at` holds (another log's of the same robot), where it holds
@@ -83,9 +78,10 @@ fn log_welded(
     files: Vec<PathBuf>,
     bag: Bag,
     document: Option<(&str, &str)>,
-    fixed: &[String],
+    how: &Reading,
     at: Option<&Welds>,
 ) -> Result<Log, ReadError> {
+    let fixed = &how.fixed;
     let file = files[0].display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
     let (document, source) = match (document, &bag.robot_description) {
@@ -138,7 +134,23 @@ fn log_welded(
     }
     let model = urdf::parse_welded(&document, &source, &welds).map_err(|e| content(e.to_string()))?;
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
-    let (trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
+    let (mut trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
+    if let Some(gains) = &how.gains {
+        apply_gains(&mut trajectory, gains).map_err(content)?;
+    }
+    let clock = trajectory.clock();
+    if clock.repeats > 0 {
+        notes.push(format!(
+            "{} sample(s) repeat the one before exactly while the arm moves (a logger's stale copies): left out",
+            clock.repeats
+        ));
+    }
+    if clock.skipped > 0 {
+        notes.push(format!(
+            "{} step(s) of two or more sampling periods (ticks the logger missed): interpolated over",
+            clock.skipped
+        ));
+    }
     // The messages take several times the memory of the samples (an hour at 1 kHz: gigabytes, millions of blocks):
     // freed on a thread of their own while the segments are cut and the work goes on (here, if no thread can be
     // started: the refused closure is dropped, and the messages with it).
@@ -148,6 +160,20 @@ fn log_welded(
         return Err(content(format!("no stretch of {MIN_SEGMENT} or more evenly stamped samples")));
     }
     Ok(Log { files, document, source, model, welds, velocity_logged, dt, segments, notes })
+}
+
+/// The logged efforts of `traj` times `gains` (one per joint, in order): motor currents to joint torques.
+fn apply_gains(traj: &mut JointTrajectory, gains: &[f64]) -> Result<(), String> {
+    let n = traj.joints();
+    if gains.len() != n {
+        return Err(format!(
+            "--gains has {} value(s) and the robot {n} moving joint(s) ({}): one gain per joint, in the URDF's order",
+            gains.len(),
+            traj.names.join(", ")
+        ));
+    }
+    traj.tau.chunks_mut(n).for_each(|row| row.iter_mut().zip(gains).for_each(|(t, g)| *t *= g));
+    Ok(())
 }
 
 /// How far (rad or m) a joint welded at the first log's position may sit from it in another log without a note.
@@ -224,13 +250,13 @@ pub fn position_ranges(log: &Log) -> Vec<(f64, f64)> {
 }
 
 /// The logs of one robot read together: each must show the same robot as the first (same URDF, same welds).
-pub fn read_logs(paths: &[PathBuf], document: Option<(&str, &str)>, fixed: &[String]) -> Result<Vec<Log>, ReadError> {
+pub fn read_logs(paths: &[PathBuf], document: Option<(&str, &str)>, how: &Reading) -> Result<Vec<Log>, ReadError> {
     let mut logs: Vec<Log> = Vec::with_capacity(paths.len());
     for path in paths {
-        let (files, bag) = read_bag(path)?;
+        let (files, bag) = read_bag(path, how)?;
         // One robot: a joint welded in every log is welded where the first log holds it (a gripper's finger is
         // held a few micrometres apart from log to log).
-        let log = log_welded(files, bag, document, fixed, logs.first().map(|l| &l.welds))?;
+        let log = log_welded(files, bag, document, how, logs.first().map(|l| &l.welds))?;
         if let Some(first) = logs.first()
             && (first.model != log.model || first.welds.keys().ne(log.welds.keys()))
         {

@@ -41,37 +41,79 @@ pub struct Recording {
     pub trajectory_index: Option<u32>,
 }
 
-/// The MCAP files of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`,
-/// `NAME_1.mcap`, ... when the recorder split it), in recording order: as `metadata.yaml` lists them, else by the
-/// number the recorder appends.
+/// How a log is read beyond what its files say: a table's column map, the drives' gains, joints to weld.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Reading {
+    /// The column map of logs that are tables ([`crate::table`]).
+    pub columns: Option<crate::table::ColumnMap>,
+    /// Joint torque (force) per unit of the logged effort, for each of the URDF's moving joints in order: a driver
+    /// that logs motor currents (`--gains`).
+    pub gains: Option<Vec<f64>>,
+    /// Joints welded at their mean logged position (`--fix`).
+    pub fixed: Vec<String>,
+}
+
+impl Reading {
+    /// Joints `fixed` welded, and nothing else asked.
+    pub fn welding(fixed: &[String]) -> Reading {
+        Reading { fixed: fixed.to_vec(), ..Reading::default() }
+    }
+}
+
+/// The files of a log given as a file or as a rosbag2 directory (`metadata.yaml` beside `NAME_0.mcap`,
+/// `NAME_1.mcap`, ... or `NAME_0.db3`, ... when the recorder split it), in recording order: as `metadata.yaml` lists
+/// them, else by the number the recorder appends.
 pub fn log_files(path: &Path) -> Result<Vec<PathBuf>, ReadError> {
     if !path.is_dir() {
         return Ok(vec![path.to_path_buf()]);
     }
     let content = |problem: String| ReadError::Content { file: path.display().to_string(), problem };
-    let listing = std::fs::read_dir(path).map_err(|e| content(e.to_string()))?;
-    let mut mcaps: Vec<PathBuf> = listing
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "mcap"))
-        .collect();
-    if mcaps.is_empty() {
-        return Err(content("a directory with no .mcap file (a log is an MCAP file or a rosbag2 directory)".into()));
+    let listing: Vec<PathBuf> =
+        std::fs::read_dir(path).map_err(|e| content(e.to_string()))?.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    let with = |extension: &str| -> Vec<PathBuf> {
+        listing.iter().filter(|p| p.extension().is_some_and(|x| x == extension)).cloned().collect()
+    };
+    let mut files = with("mcap");
+    if files.is_empty() {
+        files = with(crate::sqlite::EXTENSION);
+    }
+    if files.is_empty() {
+        return Err(content(
+            "a directory with no .mcap or .db3 file (a log is an MCAP file, a rosbag2 directory, or a table with \
+             --columns)"
+                .into(),
+        ));
     }
     let listed = std::fs::read_to_string(path.join("metadata.yaml")).unwrap_or_default();
     let order = |p: &PathBuf| {
         let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let number = name.trim_end_matches(".mcap").rsplit('_').next().and_then(|n| n.parse::<u64>().ok());
+        let stem = p.file_stem().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let number = stem.rsplit('_').next().and_then(|n| n.parse::<u64>().ok());
         (listed.find(&name).unwrap_or(usize::MAX), number.unwrap_or(u64::MAX), name)
     };
-    mcaps.sort_by_key(order);
-    Ok(mcaps)
+    files.sort_by_key(order);
+    Ok(files)
 }
 
 /// The bag of a log (a file, or every file of a rosbag2 directory joined: messages in recording order, the
-/// `/robot_description` of whichever file has one, metadata of all; CRC-checked if every file was).
-pub fn read_bag(path: &Path) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
+/// `/robot_description` of whichever file has one, metadata of all; CRC-checked if every file was): an MCAP file,
+/// a rosbag2 sqlite3 file, or a table read by `how`'s column map.
+pub fn read_bag(path: &Path, how: &Reading) -> Result<(Vec<PathBuf>, dynforge_shard::Bag), ReadError> {
     let files = log_files(path)?;
-    let bag = dynforge_shard::read_joined(&files)?;
+    let first = &files[0];
+    let bag = if first.extension().is_some_and(|x| x == crate::sqlite::EXTENSION) {
+        crate::sqlite::read_joined(&files)?
+    } else if crate::table::is_table(first) {
+        let map = how.columns.as_ref().ok_or_else(|| ReadError::Content {
+            file: first.display().to_string(),
+            problem: "a table: give its column map (--columns MAP.toml: which column is time, and each joint's \
+                      position, velocity and effort)"
+                .into(),
+        })?;
+        crate::table::read(first, map, how.gains.is_some())?
+    } else {
+        dynforge_shard::read_joined(&files)?
+    };
     Ok((files, bag))
 }
 
@@ -103,7 +145,7 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
             .map_err(|e| ReadError::Content { file: path.display().to_string(), problem: e.to_string() })?;
         return Ok((text, path.display().to_string()));
     }
-    let (files, bag) = read_bag(log)?;
+    let (files, bag) = read_bag(log, &Reading::default())?;
     let file = files[0].display().to_string();
     let text = bag.robot_description.ok_or_else(|| ReadError::Content {
         file: file.clone(),
@@ -115,7 +157,7 @@ pub fn robot_document(urdf: Option<&Path>, log: &Path) -> Result<(String, String
 /// Reads a shard or bag (a file, or a rosbag2 directory); the robot comes from its `/robot_description` unless
 /// `model` is given.
 pub fn read(path: &Path, model: Option<&Model>) -> Result<Recording, ReadError> {
-    let (files, bag) = read_bag(path)?;
+    let (files, bag) = read_bag(path, &Reading::default())?;
     recording_of(&files[0], &bag, model)
 }
 

@@ -197,6 +197,60 @@ fn pick_columns(messages: &[JointState], first: usize, names: &[String], mut out
     Ok(())
 }
 
+/// What a logger's clock did: samples that repeat the one before with a new stamp (a logger stamping by its own
+/// thread, not the driver's), and steps of about two or more periods (a tick it missed), short of a gap.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Clock {
+    pub repeats: usize,
+    pub skipped: usize,
+}
+
+impl JointTrajectory {
+    /// What the logger's clock did ([`Clock`]), with its stale repeats left out (`drop_repeats`). The missed
+    /// ticks are counted on the stamps as logged, before: a repeat left out leaves a step of two periods too.
+    pub fn clock(&mut self) -> Clock {
+        let mut steps: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
+        let skipped = median(&mut steps).map_or(0, |period| {
+            let ticks = |s: f64| s >= MISSED_TICK * period && s <= crate::log::GAP_PERIODS * period;
+            self.t.windows(2).filter(|w| ticks(w[1] - w[0])).count()
+        });
+        Clock { repeats: self.drop_repeats(), skipped }
+    }
+
+    /// Leaves out the samples that repeat the one before exactly (every position, velocity and effort) while the arm
+    /// moves (a logged velocity that is not zero, or positions that changed the step before): an arm in motion does
+    /// not measure the same values twice, and such a sample is a logger's stale copy. Returns how many.
+    fn drop_repeats(&mut self) -> usize {
+        let n = self.joints();
+        let keep: Vec<bool> = (0..self.len())
+            .map(|k| {
+                if k == 0 {
+                    return true;
+                }
+                let same = |v: &[f64]| v[k * n..(k + 1) * n] == v[(k - 1) * n..k * n];
+                let moving = self.qd[(k - 1) * n..k * n].iter().any(|&v| v != 0.0)
+                    || (k >= 2 && self.q[(k - 1) * n..k * n] != self.q[(k - 2) * n..(k - 1) * n]);
+                !(same(&self.q) && same(&self.qd) && same(&self.tau) && moving)
+            })
+            .collect();
+        let dropped = keep.iter().filter(|k| !**k).count();
+        if dropped > 0 {
+            let kept = |v: &[f64]| -> Vec<f64> {
+                let mut out = Vec::with_capacity(v.len() - dropped * n);
+                (0..keep.len()).filter(|&k| keep[k]).for_each(|k| out.extend_from_slice(&v[k * n..(k + 1) * n]));
+                out
+            };
+            (self.q, self.qd, self.tau) = (kept(&self.q), kept(&self.qd), kept(&self.tau));
+            self.t = self.t.iter().zip(&keep).filter(|(_, k)| **k).map(|(t, _)| *t).collect();
+        }
+        dropped
+    }
+}
+
+/// A step of this many median periods or more (and up to a gap) is a tick the logger missed: two periods and
+/// more, where a driver's jitter stays well below.
+pub const MISSED_TICK: f64 = 1.8;
+
 /// The median of `values` (the upper one of an even count: the element a sort would put at `len / 2`), found by
 /// selection in linear time; `values` is reordered. `None` when empty. Logs of an hour hold millions of steps and
 /// differences, where a sort per median was a measurable share of reading them.
@@ -284,6 +338,37 @@ mod tests {
         let bag = Bag { joint_states: (0..8001).map(|k| message(0, &["j0"], k as f64)).collect(), ..Bag::default() };
         let e = from_bag(&bag, &names, Path::new("unstamped.mcap")).unwrap_err().to_string();
         assert!(e.starts_with("unstamped.mcap: 8000 of 8001 joint_states messages repeat"), "{e}");
+    }
+
+    #[test]
+    fn a_logger_s_stale_repeats_are_left_out_and_its_missed_ticks_counted() {
+        let rows = [
+            (0.000, 0.0, 0.0, 1.0),
+            (0.001, 0.0, 0.0, 1.0), // at rest: the same values are a measurement, kept
+            (0.002, 0.1, 1.0, 2.0),
+            (0.003, 0.1, 1.0, 2.0), // moving: a stale copy
+            (0.004, 0.3, 1.0, 2.5),
+            (0.006, 0.5, 1.0, 2.6), // a missed tick
+            (0.007, 0.6, 1.0, 2.6), // the effort alone repeats: kept
+            (0.008, 0.7, 1.0, 2.7),
+            (0.018, 0.8, 1.0, 2.8), // a gap, not a missed tick
+        ];
+        let mut traj = JointTrajectory {
+            names: vec!["j".into()],
+            t: rows.iter().map(|r| r.0).collect(),
+            q: rows.iter().map(|r| r.1).collect(),
+            qd: rows.iter().map(|r| r.2).collect(),
+            tau: rows.iter().map(|r| r.3).collect(),
+        };
+        let mut unlogged = traj.clone();
+        assert_eq!(traj.clock(), Clock { repeats: 1, skipped: 1 });
+        assert_eq!(traj.t, [0.000, 0.001, 0.002, 0.004, 0.006, 0.007, 0.008, 0.018]);
+        assert_eq!(traj.q, [0.0, 0.0, 0.1, 0.3, 0.5, 0.6, 0.7, 0.8]);
+        assert_eq!(traj.tau, [1.0, 1.0, 2.0, 2.5, 2.6, 2.6, 2.7, 2.8]);
+        // Without a logged velocity, motion shows in the positions' step before.
+        unlogged.qd.iter_mut().for_each(|v| *v = 0.0);
+        assert_eq!(unlogged.clock(), Clock { repeats: 1, skipped: 1 });
+        assert_eq!(unlogged.q, traj.q);
     }
 
     #[test]

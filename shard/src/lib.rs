@@ -256,7 +256,7 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<Bag, ShardError> {
 
 /// A file decoded, its messages still chunk by chunk.
 struct Parts {
-    decoded: Vec<Vec<Decoded>>,
+    decoded: Vec<Vec<Message>>,
     metadata: Metadata,
     crc_checked: bool,
 }
@@ -266,15 +266,20 @@ fn assemble(parts: Vec<Parts>) -> Bag {
     let mut bag = Bag { crc_checked: !parts.is_empty() && parts.iter().all(|p| p.crc_checked), ..Bag::default() };
     bag.joint_states.reserve_exact(parts.iter().flat_map(|p| &p.decoded).map(Vec::len).sum());
     for part in parts {
-        for d in part.decoded.into_iter().flatten() {
-            match d {
-                Decoded::JointState(m) => bag.joint_states.push(m),
-                Decoded::Description(text) => bag.robot_description = Some(text),
-            }
-        }
+        part.decoded.into_iter().flatten().for_each(|m| bag.push(m));
         bag.metadata.extend(part.metadata);
     }
     bag
+}
+
+impl Bag {
+    /// Adds a message read after the ones the bag holds.
+    pub fn push(&mut self, message: Message) {
+        match message {
+            Message::JointState(m) => self.joint_states.push(m),
+            Message::Description(text) => self.robot_description = Some(text),
+        }
+    }
 }
 
 /// The messages and metadata of the file `bytes` (`path` labels errors).
@@ -315,7 +320,8 @@ fn read_parts(bytes: &[u8], path: &Path) -> Result<Parts, ShardError> {
 }
 
 /// A message of a topic dynforge reads.
-enum Decoded {
+#[derive(Debug, Clone, PartialEq)]
+pub enum Message {
     JointState(JointState),
     Description(String),
 }
@@ -325,22 +331,47 @@ fn decode(
     message: &mcap::Message,
     path: &Path,
     decoder: &mut contract::JointStateDecoder,
-) -> Result<Option<Decoded>, ShardError> {
-    let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
+) -> Result<Option<Message>, ShardError> {
     let channel = &message.channel;
-    let schema = channel.schema.as_ref().map(|s| s.name.as_str());
-    if channel.message_encoding != contract::MESSAGE_ENCODING {
+    let schema = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+    decode_message(&channel.topic, schema, &channel.message_encoding, &message.data, decoder).map_err(|e| {
+        ShardError::Content {
+            path: path.to_path_buf(),
+            message: format!("message {} on {}: {e}", message.sequence, channel.topic),
+        }
+    })
+}
+
+/// Whether messages on `topic` of the type `schema` serialised as `encoding` are ones dynforge reads.
+pub fn reads_topic(topic: &str, schema: &str, encoding: &str) -> bool {
+    encoding == contract::MESSAGE_ENCODING
+        && matches!(
+            (topic, schema),
+            (contract::TOPIC_JOINT_STATES, contract::SCHEMA_JOINT_STATE)
+                | (contract::TOPIC_ROBOT_DESCRIPTION, contract::SCHEMA_STRING)
+        )
+}
+
+/// The payload `data` of a message on `topic` of the type `schema` (`sensor_msgs/msg/JointState`) serialised as
+/// `encoding` (`cdr`) decoded, if it is one dynforge reads (`/joint_states`, `/robot_description`): what every
+/// storage of a ROS 2 bag (MCAP, sqlite3) holds alike.
+pub fn decode_message(
+    topic: &str,
+    schema: &str,
+    encoding: &str,
+    data: &[u8],
+    decoder: &mut contract::JointStateDecoder,
+) -> Result<Option<Message>, contract::CdrError> {
+    if !reads_topic(topic, schema, encoding) {
         return Ok(None);
     }
-    Ok(match (channel.topic.as_str(), schema) {
-        (contract::TOPIC_JOINT_STATES, Some(contract::SCHEMA_JOINT_STATE)) => Some(Decoded::JointState(
-            decoder
-                .decode(&message.data)
-                .map_err(|e| content(format!("message {} on {}: {e}", message.sequence, channel.topic)))?,
-        )),
-        (contract::TOPIC_ROBOT_DESCRIPTION, Some(contract::SCHEMA_STRING)) => Some(Decoded::Description(
-            contract::decode_string(&message.data).map_err(|e| content(format!("{}: {e}", channel.topic)))?,
-        )),
+    Ok(match (topic, schema) {
+        (contract::TOPIC_JOINT_STATES, contract::SCHEMA_JOINT_STATE) => {
+            Some(Message::JointState(decoder.decode(data)?))
+        }
+        (contract::TOPIC_ROBOT_DESCRIPTION, contract::SCHEMA_STRING) => {
+            Some(Message::Description(contract::decode_string(data)?))
+        }
         _ => None,
     })
 }
@@ -354,11 +385,11 @@ fn top_level_messages(bytes: &[u8]) -> bool {
 
 /// The messages of every chunk of an indexed file (channels from its summary), chunk by chunk in file order, the
 /// chunks decompressed and decoded side by side: most of the time spent reading a long log.
-fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Result<Vec<Vec<Decoded>>, ShardError> {
+fn read_chunks(bytes: &[u8], summary: &mcap::read::Summary, path: &Path) -> Result<Vec<Vec<Message>>, ShardError> {
     let me = mcap_err(path);
     let mut indexes = summary.chunk_indexes.clone();
     indexes.sort_by_key(|i| i.chunk_start_offset);
-    let parts = dynforge_proto::parallel::map_in_order(&indexes, |index| -> Result<Vec<Decoded>, ShardError> {
+    let parts = dynforge_proto::parallel::map_in_order(&indexes, |index| -> Result<Vec<Message>, ShardError> {
         let (mut out, mut decoder) = (Vec::new(), contract::JointStateDecoder::default());
         for message in summary.stream_chunk(bytes, index).map_err(&me)? {
             out.extend(decode(&message.map_err(&me)?, path, &mut decoder)?);

@@ -18,7 +18,8 @@ stdin (JSON):
                   at its instants
   noise           effort noise, a fraction of each joint's torque RMS (white, Gaussian); 0 for none
   counts          encoder counts per revolution (0: exact positions); prismatic joints get 1e-6 m steps
-  velocity        "measured" (exact), "encoder" (differences of the logged positions), "absent" (no velocity array)
+  velocity        "measured" (exact), "encoder" (differences of the logged positions), "absent" (no velocity array),
+                  "noisy" (measured, plus white noise of velocity_noise times each joint's velocity RMS)
   hold            {joint: position} for joints held still (default: the middle of their limits, or 0)
   out             path of the bag; "split": 2 writes it as a rosbag2 directory of two files (NAME_0.mcap, NAME_1.mcap)
 stdout (JSON): {"joints": [...], "samples": n, "torque_rms": [...]}.
@@ -189,6 +190,10 @@ def degrade(req, m, joints, t, q, qd, tau):
     velocity = req.get("velocity", "measured")
     if velocity == "encoder":
         qd = np.vstack([np.zeros((1, q.shape[1])), np.diff(q, axis=0) / np.diff(t)[:, None]])
+    if velocity == "noisy":
+        # A stream of its own: the effort noise is drawn as for the other velocities, and only the velocity differs.
+        own = np.random.default_rng(req["seed"] + 2_000_003)
+        qd = qd + own.normal(size=qd.shape) * req["velocity_noise"] * np.sqrt((qd**2).mean(axis=0))
     rms = np.sqrt((tau**2).mean(axis=0))
     noise = req.get("noise", 0.0)
     if noise:

@@ -24,6 +24,7 @@ use std::path::PathBuf;
 
 use dynforge_proto::params::friction_index;
 use dynforge_proto::spread::Spread;
+use dynforge_recording::Reading;
 use dynforge_recording::log::{Log, read_logs, still_joints};
 use dynforge_recording::{JointTrajectory, ReadError};
 use dynforge_robot::Model;
@@ -37,8 +38,8 @@ use crate::consistent::{self, CoordinatePrior};
 use crate::normal::NormalEquations;
 use crate::rows::{RowSums, residuals};
 use crate::signals::{
-    Conditioned, Conditioning, EffortConvention, VelocityChoice, VelocitySource, choose_cutoff, choose_velocity,
-    condition, noise_gain, row_step,
+    Conditioned, Conditioning, EffortConvention, VelocityChoice, VelocitySource, choose_signals, condition, noise_gain,
+    row_step,
 };
 use crate::solve::least_squares;
 
@@ -48,13 +49,14 @@ pub struct Options {
     /// How far the URDF's values are trusted (relative; see [`CoordinatePrior::of`]).
     pub spread: Spread,
     pub conditioning: Conditioning,
-    /// Joints welded at their mean logged position (e.g. a gripper's, still during the excitation).
-    pub fixed: Vec<String>,
+    /// How the logs are read: a table's columns, the drives' gains, joints welded at their mean logged position
+    /// (e.g. a gripper's, still during the excitation).
+    pub reading: Reading,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { spread: Spread::uniform(0.5), conditioning: Conditioning::default(), fixed: Vec::new() }
+        Options { spread: Spread::uniform(0.5), conditioning: Conditioning::default(), reading: Reading::default() }
     }
 }
 
@@ -76,6 +78,14 @@ pub enum CalibrateError {
          identified; record motion of them, or weld them with --fix {fix}"
     )]
     StillJoints { joints: String, ranges: String, fix: String },
+    #[error(
+        "the logged effort is not the joint torque the URDF predicts: {joints} (the effort over the URDF's torque, \
+         least squares, where the URDF's torque has the effort's shape: correlation {MIN_CORRELATION} or more). If the \
+         log holds motor currents, give --gains (joint torque per unit of effort, one per joint in the URDF's order; \
+         these scales suggest about {suggested}); a negative scale is a joint whose sign differs between the log and \
+         the URDF. Scales of every joint: {all}"
+    )]
+    EffortScale { joints: String, suggested: String, all: String },
     #[error(
         "the URDF does not explain the torques of joint '{joint}': the calibrated robot leaves {residual:.3e} of its \
          torque's spread unexplained where the log's noise is {noise:.3e}; check that the URDF's kinematics are the \
@@ -110,7 +120,7 @@ pub fn identify_logs(
     if paths.is_empty() {
         return Err(CalibrateError::NoLogs);
     }
-    identify_read(read_logs(paths, document, &options.fixed)?, options)
+    identify_read(read_logs(paths, document, &options.reading)?, options)
 }
 
 /// [`identify_logs`] of logs already read (and perhaps changed: a family's variants degraded as a bag is).
@@ -130,6 +140,7 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
     let fail = |source| CalibrateError::Identify { file: logs[0].name(), source };
     let model = logs[0].model.clone();
     let (sums, velocity) = sum_rows(&logs, &options.conditioning).map_err(fail)?;
+    check_effort_scale(&sums.equations(EffortConvention::Sampled), &model)?;
     let (convention, effort_reason) = choose_convention(&sums, options.conditioning.effort).map_err(fail)?;
     let ne = sums.equations(convention);
     let mut id = fit(&model, &ne, &logs, &velocity, convention, options).map_err(fail)?;
@@ -144,14 +155,8 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
 /// cut-off over all).
 fn sum_rows(logs: &[Log], conditioning: &Conditioning) -> Result<(RowSums, VelocityChoice), IdentifyError> {
     let first = &logs[0];
-    let (source, reason) = choose_velocity(&first.segments[0], first.velocity_logged, conditioning.velocity);
-    let cutoff = match source {
-        VelocitySource::Logged => None,
-        VelocitySource::Positions => Some(conditioning.cutoff.unwrap_or_else(|| {
-            let all: Vec<&JointTrajectory> = logs.iter().flat_map(|l| &l.segments).collect();
-            choose_cutoff(&all, first.dt)
-        })),
-    };
+    let all: Vec<&JointTrajectory> = logs.iter().flat_map(|l| &l.segments).collect();
+    let (source, cutoff, reason) = choose_signals(&all, first.dt, first.velocity_logged, conditioning);
     let pieces: Vec<(&JointTrajectory, std::ops::Range<usize>)> = logs
         .iter()
         .flat_map(|l| &l.segments)
@@ -193,7 +198,7 @@ fn condition_piece(
 /// taken as the whole segment's filtering would give them (to ~1e-7 of the signal).
 fn settling(source: VelocitySource, cutoff: Option<f64>, dt: f64) -> usize {
     match (source, cutoff) {
-        (VelocitySource::Positions, Some(fc)) => (4.0 / (fc * dt)).ceil() as usize,
+        (_, Some(fc)) => (4.0 / (fc * dt)).ceil() as usize,
         _ => 1,
     }
 }
@@ -471,6 +476,52 @@ pub(crate) fn model_with(model: &Model, pi: &[f64]) -> Result<Model, IdentifyErr
 }
 
 /// An error when a joint's residual is far above its noise floor (a model that does not explain the log).
+/// Correlation between a joint's effort and the URDF's torque above which the URDF is taken to describe the
+/// effort's shape, so that its scale tells the effort's unit: the gravity-loaded joints of any arm (0.9 and more on
+/// the MuJoCo UR5 and Panda from nominal URDFs 30 % off); a joint moved by friction mostly (which a URDF rarely
+/// states) shows far less, and its scale says nothing.
+pub const MIN_CORRELATION: f64 = 0.8;
+
+/// Scales of the effort over the URDF's torque accepted as torque: a URDF 50 % off, or missing a motor's rotor
+/// inertia (about twice a UR10e's base inertia), stays within; a current in A against a gear's 5-100 N m / A does not.
+pub const EFFORT_SCALE: (f64, f64) = (1.0 / 3.0, 3.0);
+
+/// An error unless the logged effort is in the URDF's joint torques: for every joint whose effort the URDF's torque
+/// describes (correlation [`MIN_CORRELATION`] or more), the least-squares scale of the one onto the other is within
+/// [`EFFORT_SCALE`] (currents, or another unit, are not) and positive (a flipped sign is not). Judged on `ne` (the
+/// logs' normal equations) with the URDF's own parameters, before any fit.
+fn check_effort_scale(ne: &NormalEquations, model: &Model) -> Result<(), CalibrateError> {
+    let pi = DVector::from_vec(dynamic_parameters(model));
+    let mut all = Vec::new();
+    let (mut wrong, mut suggested) = (Vec::new(), Vec::new());
+    for (j, joint) in model.joints().iter().enumerate() {
+        let (a, b, c, _) = ne.joint(j);
+        let (predicted, cross) = (pi.dot(&(a * &pi)), b.dot(&pi));
+        if predicted <= 0.0 || c <= 0.0 {
+            all.push(format!("'{}' -", joint.name));
+            continue;
+        }
+        let (scale, correlation) = (cross / predicted, cross / (c * predicted).sqrt());
+        all.push(format!("'{}' {scale:.3} (correlation {correlation:.2})", joint.name));
+        let described = correlation.abs() >= MIN_CORRELATION;
+        if described && !(EFFORT_SCALE.0..=EFFORT_SCALE.1).contains(&scale) {
+            wrong.push(format!("joint '{}' {scale:.3}", joint.name));
+        }
+        suggested.push(match described {
+            true => format!("{:.3}", 1.0 / scale),
+            false => "?".into(),
+        });
+    }
+    match wrong.is_empty() {
+        true => Ok(()),
+        false => Err(CalibrateError::EffortScale {
+            joints: wrong.join(", "),
+            suggested: suggested.join(","),
+            all: all.join(", "),
+        }),
+    }
+}
+
 fn check_explained(id: &Identification, model: &Model) -> Result<(), CalibrateError> {
     for (j, joint) in id.joints.iter().enumerate() {
         let (residual, noise) = (joint.nrmse, joint.noise_floor);
@@ -490,7 +541,7 @@ pub fn held_out(
     options: &Options,
     id: &Identification,
 ) -> Result<NormalEquations, CalibrateError> {
-    let logs = read_logs(paths, document, &options.fixed)?;
+    let logs = read_logs(paths, document, &options.reading)?;
     let model = &logs[0].model;
     let mut sums = RowSums::new(model.dof());
     for log in &logs {

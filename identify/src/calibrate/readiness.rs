@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use dynforge_recording::Reading;
 use dynforge_recording::log::{Log, log_of, still_joints};
 use dynforge_recording::{Bag, recording_of};
 
@@ -30,7 +31,7 @@ impl Readiness {
             return Readiness { identify: Err(why.clone()), estimate: Err(why) };
         }
         let estimate = estimate(&files, &bag);
-        let identify = log_of(files, bag, None, &[]).map_err(|e| e.to_string()).and_then(identify);
+        let identify = log_of(files, bag, None, &Reading::default()).map_err(|e| e.to_string()).and_then(identify);
         Readiness { identify, estimate }
     }
 }

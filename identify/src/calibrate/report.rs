@@ -369,9 +369,12 @@ impl std::fmt::Display for Identification {
             }
         )?;
         let v = &self.velocity;
-        match v.cutoff {
-            Some(fc) => writeln!(f, "velocity: from positions, low-passed at {fc:.1} Hz ({})", v.reason)?,
-            None => writeln!(f, "velocity: as logged ({})", v.reason)?,
+        match (v.source, v.cutoff) {
+            (VelocitySource::Positions, Some(fc)) => {
+                writeln!(f, "velocity: from positions, low-passed at {fc:.1} Hz ({})", v.reason)?
+            }
+            (_, Some(fc)) => writeln!(f, "velocity: as logged, low-passed at {fc:.1} Hz ({})", v.reason)?,
+            (_, None) => writeln!(f, "velocity: as logged ({})", v.reason)?,
         }
         writeln!(f, "effort: {} ({})", self.effort.name(), self.effort_reason)?;
         writeln!(f, "{} of {} parameter combinations identifiable", self.rank, self.parameters)?;

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# A real arm: `dynforge identify` on a UR10e's public logs (github shamilmamedov/dynamic_calibration, dataset_ur10e/),
+# read as their CSV tables come, with the repository's drive gains, no conversion step. The data carry no licence:
+# they are read from your checkout and never copied into this repository; the trimmed copies go to OUT.
+#
+# Identifies the four unloaded excitation logs that the repository's main.m names (trimmed to its index ranges), holds
+# out the point-to-point motion (rows 700-4200), and prints identify's tables, its held-out torque NRMSE beside the URDF
+# as given, and its link masses beside UR's published ones.
+#
+# Usage: bench/ur10e.sh CHECKOUT [OUT=bench/out/ur10e] [identify flags...]
+set -euo pipefail
+root=$(cd "$(dirname "$0")/.." && pwd)
+repo=$(cd "${1:?usage: bench/ur10e.sh CHECKOUT_OF_dynamic_calibration [OUT] [identify flags]}" && pwd)
+out=${2:-$root/bench/out/ur10e}
+shift $(( $# >= 2 ? 2 : 1 ))
+mkdir -p "$out"
+cd "$root"
+cargo build --release -q --workspace
+bin=${CARGO_TARGET_DIR:-$root/target}/release
+
+# Rows as main.m takes them (1-based, inclusive): the motion, without the rest before and after.
+trim() { sed -n "$2,$3p" "$repo/dataset_ur10e/$1" > "$out/$(basename "$1")"; }
+trim identification_data/ur-20_02_10-30sec_12harm.csv 635 3510
+trim identification_data/ur-20_02_12-40sec_12harm.csv 500 4460
+trim identification_data/ur-20_02_05-20sec_8harm.csv 320 2310
+trim identification_data/ur-20_02_12-50sec_12harm.csv 355 5090
+trim validation_data/ur-20_01_17-ptp_10_points.csv 700 4200
+
+# Columns (utils/data_processing/parseURData.m): t, q1..6, qd1..6, motor current i1..6 [A], target currents, target
+# torques. Gains: UR10E_parameters.txt's drvGains [N m / A]. Some rows are torn (fewer columns): skipped and counted.
+gains=(10.0000 10.6956 8.4566 9.0029 9.4800 10.1232)
+joints=(shoulder_pan_joint shoulder_lift_joint elbow_joint wrist_1_joint wrist_2_joint wrist_3_joint)
+{
+  echo 'bad_rows = "skip"'
+  echo 'time = { column = 1, unit = "s" }'
+  for k in 0 1 2 3 4 5; do
+    printf '[joints.%s]\nposition = %d\nvelocity = %d\ncurrent = %d\ngain = %s\n' \
+      "${joints[$k]}" $((k + 2)) $((k + 8)) $((k + 14)) "${gains[$k]}"
+  done
+} > "$out/ur10e.columns.toml"
+
+logs=("$out"/ur-20_02_10-30sec_12harm.csv "$out"/ur-20_02_12-40sec_12harm.csv "$out"/ur-20_02_05-20sec_8harm.csv
+  "$out"/ur-20_02_12-50sec_12harm.csv)
+"$bin/dynforge" info "${logs[0]}" --columns "$out/ur10e.columns.toml"
+"$bin/dynforge" identify "${logs[@]}" --urdf "$repo/URe/urdf/ur10e.urdf" --columns "$out/ur10e.columns.toml" \
+  --holdout "$out/ur-20_01_17-ptp_10_points.csv" --out "$out/ur10e.calibrated.urdf" "$@" | tee "$out/identify.txt"
+echo
+echo "UR's published masses [kg]: shoulder 7.369, upper arm 13.051, forearm 3.989, wrist 1 2.1, wrist 2 1.98, wrist 3 0.615"

@@ -1,0 +1,510 @@
+//! Logs written as tables (CSV, TSV, whitespace-separated: what RTDE, MATLAB and most lab loggers write), read by a
+//! declared column map, never by guessing what a column holds. The map is a small TOML file:
+//!
+//! ```toml
+//! delimiter = "comma"         # comma, tab, semicolon or whitespace (default: from the extension)
+//! header = false              # whether the first row (after skip_rows) names the columns
+//! skip_rows = 0               # rows before the data (or the header)
+//! bad_rows = "error"          # or "skip": rows of the wrong width or with a non-number are left out and counted
+//! time = { column = 1, unit = "s" }    # s, ms, us or ns
+//!
+//! [joints.shoulder_pan_joint]  # a URDF joint
+//! position = 2                 # columns count from 1, or name a header's column ("q1")
+//! velocity = 8                 # optional (every joint or none)
+//! current = 14                 # or `effort = 14` for a torque [N m] or force [N]
+//! gain = 10.0                  # joint torque per unit of the column: required for a current (or --gains)
+//! ```
+//!
+//! The table becomes the bag a driver would have recorded: one `sensor_msgs/msg/JointState` per row, the effort in
+//! joint torque, so every command reads it as it reads a bag.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+
+use dynforge_proto::shard::JointState;
+use dynforge_shard::{Bag, Metadata};
+
+use crate::read::ReadError;
+
+/// Extensions read as tables.
+pub const EXTENSIONS: [&str; 4] = ["csv", "tsv", "txt", "dat"];
+
+/// Whether `path` names a table by its extension.
+pub fn is_table(path: &Path) -> bool {
+    path.extension().and_then(|e| e.to_str()).is_some_and(|e| EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
+/// The metadata record that says how a table was read (`info` prints it).
+pub const META_TABLE: &str = "table";
+
+/// A table's column map: which column holds what (see the module documentation).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ColumnMap {
+    #[serde(default)]
+    pub delimiter: Option<Delimiter>,
+    #[serde(default)]
+    pub header: bool,
+    #[serde(default)]
+    pub skip_rows: usize,
+    #[serde(default)]
+    pub bad_rows: BadRows,
+    pub time: TimeColumn,
+    /// Each URDF joint's columns, by joint name.
+    pub joints: BTreeMap<String, JointColumns>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Delimiter {
+    Comma,
+    Tab,
+    Semicolon,
+    /// Any run of spaces and tabs.
+    Whitespace,
+}
+
+/// What to do with a row that cannot be read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BadRows {
+    /// Refuse the table, naming the file and the line.
+    #[default]
+    Error,
+    /// Leave the row out and count it.
+    Skip,
+}
+
+/// A column: its number (from 1) or its header's name.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize)]
+#[serde(untagged)]
+pub enum Column {
+    Number(usize),
+    Name(String),
+}
+
+impl std::fmt::Display for Column {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Column::Number(n) => write!(f, "{n}"),
+            Column::Name(name) => write!(f, "'{name}'"),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeColumn {
+    pub column: Column,
+    #[serde(default)]
+    pub unit: TimeUnit,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize)]
+pub enum TimeUnit {
+    #[default]
+    #[serde(rename = "s")]
+    Seconds,
+    #[serde(rename = "ms")]
+    Milliseconds,
+    #[serde(rename = "us")]
+    Microseconds,
+    #[serde(rename = "ns")]
+    Nanoseconds,
+}
+
+impl TimeUnit {
+    fn nanoseconds(self) -> f64 {
+        match self {
+            TimeUnit::Seconds => 1e9,
+            TimeUnit::Milliseconds => 1e6,
+            TimeUnit::Microseconds => 1e3,
+            TimeUnit::Nanoseconds => 1.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointColumns {
+    pub position: Column,
+    #[serde(default)]
+    pub velocity: Option<Column>,
+    /// The joint's torque [N m] (force [N] for a prismatic joint), or with `gain`, a quantity proportional to it.
+    #[serde(default)]
+    pub effort: Option<Column>,
+    /// The motor's current: a torque only through `gain`.
+    #[serde(default)]
+    pub current: Option<Column>,
+    /// Joint torque per unit of the effort or current column.
+    #[serde(default)]
+    pub gain: Option<f64>,
+}
+
+impl ColumnMap {
+    /// Reads the map file `path`.
+    pub fn read(path: &Path) -> Result<ColumnMap, ReadError> {
+        let content = |problem: String| ReadError::Content { file: path.display().to_string(), problem };
+        let text = std::fs::read_to_string(path).map_err(|e| content(e.to_string()))?;
+        let map: ColumnMap = toml::from_str(&text).map_err(|e| content(format!("not a column map: {e}")))?;
+        map.check().map_err(content)?;
+        Ok(map)
+    }
+
+    /// The map's own consistency, before any table is read.
+    fn check(&self) -> Result<(), String> {
+        if self.joints.is_empty() {
+            return Err("no [joints.NAME] table: name each URDF joint's columns".into());
+        }
+        let with_velocity = self.joints.values().filter(|j| j.velocity.is_some()).count();
+        if with_velocity != 0 && with_velocity != self.joints.len() {
+            return Err("velocity is given for some joints and not for others: give it for every joint or none".into());
+        }
+        let columns = std::iter::once(&self.time.column).chain(self.joints.values().flat_map(|j| {
+            [Some(&j.position), j.velocity.as_ref(), j.effort.as_ref(), j.current.as_ref()].into_iter().flatten()
+        }));
+        for c in columns {
+            match c {
+                Column::Number(0) => return Err("column 0: columns count from 1".into()),
+                Column::Name(name) if !self.header => {
+                    return Err(format!("column '{name}' is named, but header = false: number it, or set header"));
+                }
+                _ => {}
+            }
+        }
+        for (name, j) in &self.joints {
+            match (&j.effort, &j.current) {
+                (Some(_), Some(_)) => return Err(format!("joint '{name}': effort and current both given; give one")),
+                (None, None) => return Err(format!("joint '{name}': no effort or current column")),
+                _ => {}
+            }
+            if let Some(g) = j.gain
+                && !(g.is_finite() && g != 0.0)
+            {
+                return Err(format!("joint '{name}': gain {g} is not a finite, non-zero number"));
+            }
+        }
+        Ok(())
+    }
+
+    fn delimiter_for(&self, path: &Path) -> Delimiter {
+        self.delimiter.unwrap_or_else(|| match path.extension().and_then(|e| e.to_str()) {
+            Some(e) if e.eq_ignore_ascii_case("csv") => Delimiter::Comma,
+            Some(e) if e.eq_ignore_ascii_case("tsv") => Delimiter::Tab,
+            _ => Delimiter::Whitespace,
+        })
+    }
+}
+
+/// What one row gives: the time and each joint's values, as column indices from 0.
+struct Layout {
+    time: usize,
+    scale: f64,
+    position: Vec<usize>,
+    velocity: Option<Vec<usize>>,
+    effort: Vec<usize>,
+    /// Joint torque per unit of each joint's effort column (1 for a torque without a gain).
+    gain: Vec<f64>,
+    /// The widest column read, plus one: a row narrower than that is torn.
+    width: usize,
+}
+
+/// The table at `path` read by `map` as a bag of joint states, each joint's effort times its map's gain. With
+/// `gains_given`, the caller scales the efforts itself (`--gains`): a map's gain would be a second one. Rows that cannot be read and time going backwards are errors naming the
+/// line, or skipped and counted (the map's `bad_rows`); the count and the map as understood are the bag's
+/// [`META_TABLE`] record.
+pub fn read(path: &Path, map: &ColumnMap, gains_given: bool) -> Result<Bag, ReadError> {
+    let file = path.display().to_string();
+    let content = |problem: String| ReadError::Content { file: file.clone(), problem };
+    let bytes = std::fs::read(path).map_err(|e| content(e.to_string()))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| content(format!("not text: {e}")))?;
+    let delimiter = map.delimiter_for(path);
+    let mut lines = text.lines().enumerate().skip(map.skip_rows);
+    let header: Vec<&str> = match map.header {
+        true => {
+            let (_, line) = lines.next().ok_or_else(|| content("no header row".into()))?;
+            fields(line, delimiter).map(|f| f.trim().trim_matches('"')).collect()
+        }
+        false => Vec::new(),
+    };
+    let layout = layout(map, &header, gains_given).map_err(content)?;
+    let names: Arc<[String]> = map.joints.keys().cloned().collect();
+    let (mut joint_states, mut skipped, mut first_skipped) = (Vec::new(), 0usize, None::<String>);
+    let mut last_ns = i64::MIN;
+    let mut values = vec![0.0; layout.width];
+    let mut wanted = vec![false; layout.width];
+    for c in std::iter::once(layout.time)
+        .chain(layout.position.iter().copied())
+        .chain(layout.velocity.iter().flatten().copied())
+        .chain(layout.effort.iter().copied())
+    {
+        wanted[c] = true;
+    }
+    for (index, line) in lines {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let row = parse_row(line, delimiter, &wanted, &mut values).and_then(|()| {
+            let t = values[layout.time] * layout.scale;
+            if !(t.is_finite() && t.abs() < 9.2e18) {
+                return Err(format!("time {} is not a time", values[layout.time]));
+            }
+            let ns = t.round() as i64;
+            if ns < last_ns {
+                let unit = |ns: i64| ns as f64 / layout.scale;
+                return Err(format!("the time goes backwards ({} after {})", unit(ns), unit(last_ns)));
+            }
+            Ok(ns)
+        });
+        match row {
+            Ok(ns) => {
+                last_ns = ns;
+                let pick = |columns: &[usize], gain: Option<&[f64]>| -> Vec<f64> {
+                    columns.iter().enumerate().map(|(j, &c)| values[c] * gain.map_or(1.0, |g| g[j])).collect()
+                };
+                joint_states.push(JointState {
+                    sec: ns.div_euclid(1_000_000_000) as i32,
+                    nanosec: ns.rem_euclid(1_000_000_000) as u32,
+                    frame_id: String::new(),
+                    name: names.clone(),
+                    position: pick(&layout.position, None),
+                    velocity: layout.velocity.as_deref().map_or_else(Vec::new, |v| pick(v, None)),
+                    effort: pick(&layout.effort, Some(&layout.gain)),
+                });
+            }
+            Err(problem) if map.bad_rows == BadRows::Skip => {
+                skipped += 1;
+                first_skipped.get_or_insert_with(|| format!("line {}: {problem}", index + 1));
+            }
+            Err(problem) => {
+                return Err(content(format!(
+                    "line {}: {problem} (set bad_rows = \"skip\" in the column map to leave such rows out)",
+                    index + 1
+                )));
+            }
+        }
+    }
+    if joint_states.is_empty() {
+        return Err(content("no data row".into()));
+    }
+    let mut record = BTreeMap::from([
+        ("rows".to_string(), joint_states.len().to_string()),
+        ("skipped_rows".to_string(), skipped.to_string()),
+        ("columns".to_string(), understood(map, &layout)),
+    ]);
+    if let Some(first) = first_skipped {
+        record.insert("first_skipped".into(), first);
+    }
+    let metadata: Metadata = [(META_TABLE.to_string(), record)].into();
+    Ok(Bag { robot_description: None, joint_states, metadata, crc_checked: false })
+}
+
+/// The map's columns as indices into a row whose header is `header` (empty without one).
+fn layout(map: &ColumnMap, header: &[&str], gains_given: bool) -> Result<Layout, String> {
+    let index = |c: &Column| -> Result<usize, String> {
+        match c {
+            Column::Number(n) => Ok(n - 1),
+            Column::Name(name) => header
+                .iter()
+                .position(|h| h == name)
+                .ok_or_else(|| format!("the header has no column '{name}' (it has {header:?})")),
+        }
+    };
+    let joints: Vec<(&String, &JointColumns)> = map.joints.iter().collect();
+    let all = |f: &dyn Fn(&JointColumns) -> Option<&Column>| -> Result<Vec<usize>, String> {
+        joints.iter().map(|(_, j)| index(f(j).expect("checked with the map"))).collect()
+    };
+    let mut gain = Vec::new();
+    for (name, j) in &joints {
+        gain.push(match (j.gain, gains_given) {
+            (Some(_), true) => return Err(format!("joint '{name}': a gain in the column map and in --gains")),
+            (Some(g), false) => g,
+            (None, false) if j.current.is_some() => {
+                return Err(format!(
+                    "joint '{name}': its column is a current, and no gain turns it into a torque (give --gains, or \
+                     gain = ... in the column map)"
+                ));
+            }
+            (None, _) => 1.0,
+        });
+    }
+    let position = all(&|j| Some(&j.position))?;
+    let velocity = match joints.iter().all(|(_, j)| j.velocity.is_some()) {
+        true => Some(all(&|j| j.velocity.as_ref())?),
+        false => None,
+    };
+    let effort = all(&|j| j.effort.as_ref().or(j.current.as_ref()))?;
+    let time = index(&map.time.column)?;
+    let width = std::iter::once(time).chain(position.iter().chain(velocity.iter().flatten()).chain(&effort).copied());
+    let width = width.max().unwrap_or(0) + 1;
+    Ok(Layout { time, scale: map.time.unit.nanoseconds(), position, velocity, effort, gain, width })
+}
+
+/// The fields of `line`.
+fn fields(line: &str, delimiter: Delimiter) -> Box<dyn Iterator<Item = &str> + '_> {
+    match delimiter {
+        Delimiter::Comma => Box::new(line.split(',')),
+        Delimiter::Tab => Box::new(line.split('\t')),
+        Delimiter::Semicolon => Box::new(line.split(';')),
+        Delimiter::Whitespace => Box::new(line.split_ascii_whitespace()),
+    }
+}
+
+/// The `wanted` fields of `line` parsed into `values` (the others are not parsed); why not, if the row is too narrow
+/// or a wanted field is not a finite number.
+fn parse_row(line: &str, delimiter: Delimiter, wanted: &[bool], values: &mut [f64]) -> Result<(), String> {
+    let mut count = 0;
+    for (c, field) in fields(line, delimiter).take(wanted.len()).enumerate() {
+        count = c + 1;
+        if wanted[c] {
+            let v: f64 =
+                field.trim().parse().map_err(|_| format!("column {}: '{}' is not a number", c + 1, field.trim()))?;
+            if !v.is_finite() {
+                return Err(format!("column {}: {v} is not a finite number", c + 1));
+            }
+            values[c] = v;
+        }
+    }
+    if count < wanted.len() {
+        return Err(format!("{count} column(s), the column map reads column {}", wanted.len()));
+    }
+    Ok(())
+}
+
+/// The map as it was applied, in one line: what `info` prints.
+fn understood(map: &ColumnMap, layout: &Layout) -> String {
+    let unit = match map.time.unit {
+        TimeUnit::Seconds => "s",
+        TimeUnit::Milliseconds => "ms",
+        TimeUnit::Microseconds => "us",
+        TimeUnit::Nanoseconds => "ns",
+    };
+    let mut parts = vec![format!("time {} [{unit}]", layout.time + 1)];
+    for (k, (name, j)) in map.joints.iter().enumerate() {
+        let velocity = layout.velocity.as_ref().map_or(String::new(), |v| format!(" velocity {}", v[k] + 1));
+        let effort = match (&j.current, layout.gain[k]) {
+            (Some(_), _) if j.gain.is_none() => format!("current {} x --gains", layout.effort[k] + 1),
+            (Some(_), g) => format!("current {} x {g}", layout.effort[k] + 1),
+            (None, g) if g != 1.0 => format!("effort {} x {g}", layout.effort[k] + 1),
+            (None, _) => format!("effort {}", layout.effort[k] + 1),
+        };
+        parts.push(format!("{name}: position {}{velocity} {effort}", layout.position[k] + 1));
+    }
+    parts.join("; ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MAP: &str = r#"
+        time = { column = 1, unit = "ms" }
+        [joints.a]
+        position = 2
+        velocity = 3
+        effort = 4
+        [joints.b]
+        position = 5
+        velocity = 6
+        current = 7
+        gain = 2.5
+    "#;
+
+    fn map(text: &str) -> ColumnMap {
+        let map: ColumnMap = toml::from_str(text).unwrap();
+        map.check().unwrap();
+        map
+    }
+
+    fn table(dir: &Path, name: &str, text: &str) -> std::path::PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn rows_become_joint_states_in_joint_torque_with_the_map_s_time_unit() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = table(dir.path(), "log.csv", "0,1,2,3,4,5,6,7\n\n2,1.5,2,3,4,5,6,8,99\n");
+        let bag = read(&path, &map(MAP), false).unwrap();
+        assert_eq!(bag.joint_states.len(), 2);
+        let m = &bag.joint_states[1];
+        assert_eq!((m.sec, m.nanosec), (0, 2_000_000));
+        assert_eq!(&*m.name, &["a".to_string(), "b".to_string()]);
+        assert_eq!((m.position.as_slice(), m.velocity.as_slice()), (&[1.5, 4.0][..], &[2.0, 5.0][..]));
+        assert_eq!(m.effort, [3.0, 15.0]);
+        let record = &bag.metadata[META_TABLE];
+        assert_eq!((record["rows"].as_str(), record["skipped_rows"].as_str()), ("2", "0"));
+        assert_eq!(
+            record["columns"],
+            "time 1 [ms]; a: position 2 velocity 3 effort 4; b: position 5 velocity 6 current 7 x 2.5"
+        );
+    }
+
+    #[test]
+    fn bad_rows_name_the_line_or_are_skipped_and_counted_when_asked() {
+        let dir = tempfile::tempdir().unwrap();
+        let text = "0,1,2,3,4,5,6,7\n1,1,2,3\n2,1,x,3,4,5,6,7\n1.5,1,2,3,4,5,6,7\n3,1,2,3,4,5,6,7\n";
+        let path = table(dir.path(), "log.csv", text);
+        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("{}: line 2: 4 column(s)", path.display())) && e.contains("bad_rows"), "{e}");
+        let skip = map(&format!("bad_rows = \"skip\"\n{MAP}"));
+        let bag = read(&path, &skip, false).unwrap();
+        assert_eq!(bag.joint_states.iter().map(|m| m.nanosec).collect::<Vec<_>>(), [0, 1_500_000, 3_000_000]);
+        let record = &bag.metadata[META_TABLE];
+        assert_eq!(record["skipped_rows"], "2");
+        assert!(record["first_skipped"].starts_with("line 2: 4 column(s)"), "{}", record["first_skipped"]);
+        // A row whose time goes backwards is named by its line too.
+        let path = table(dir.path(), "back.csv", "0,1,2,3,4,5,6,7\n5,1,2,3,4,5,6,7\n4,1,2,3,4,5,6,7\n");
+        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        assert!(e.contains("line 3: the time goes backwards (4 after 5)"), "{e}");
+        let path = table(dir.path(), "word.csv", "0,1,2,3,4,5,6,nan\n0,1,2,3,4,5,nan,7\n");
+        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        assert!(e.contains("line 2: column 7: NaN is not a finite number"), "{e}");
+    }
+
+    #[test]
+    fn header_names_whitespace_and_a_current_without_gain() {
+        let dir = tempfile::tempdir().unwrap();
+        let named = r#"
+            header = true
+            skip_rows = 1
+            time = { column = "stamp" }
+            [joints.a]
+            position = "q"
+            current = "i"
+        "#;
+        let path = table(dir.path(), "log.txt", "# logger v2\nstamp  i  q\n0.5 3 1\n  0.75\t4 2  \n");
+        let e = read(&path, &map(named), false).unwrap_err().to_string();
+        assert!(e.contains("joint 'a': its column is a current") && e.contains("--gains"), "{e}");
+        let bag = read(&path, &map(named), true).unwrap();
+        let m = &bag.joint_states[1];
+        assert_eq!((m.sec, m.nanosec, m.position[0], m.effort[0]), (0, 750_000_000, 2.0, 4.0));
+        assert!(m.velocity.is_empty());
+        let gained = named.replace("current = \"i\"", "current = \"i\"\ngain = 3.0");
+        let e = read(&path, &map(&gained), true).unwrap_err().to_string();
+        assert!(e.contains("a gain in the column map and in --gains"), "{e}");
+        let wrong = named.replace("\"q\"", "\"pos\"");
+        let e = read(&path, &map(&wrong), true).unwrap_err().to_string();
+        assert!(e.contains("the header has no column 'pos'"), "{e}");
+    }
+
+    #[test]
+    fn a_map_that_cannot_be_applied_is_refused_before_any_table_is_read() {
+        let problem = |text: &str| toml::from_str::<ColumnMap>(text).map_err(|e| e.to_string()).and_then(|m| m.check());
+        let base = "time = { column = 1 }\n[joints.a]\nposition = 2\n";
+        assert!(problem(&format!("{base}effort = 3\ncurrent = 4\n")).unwrap_err().contains("effort and current both"));
+        assert!(problem(base).unwrap_err().contains("no effort or current column"));
+        assert!(problem(&format!("{base}effort = 0\n")).unwrap_err().contains("columns count from 1"));
+        assert!(problem(&format!("{base}effort = \"tau\"\n")).unwrap_err().contains("header = false"));
+        assert!(
+            problem(&format!("{base}effort = 3\n[joints.b]\nposition = 4\nvelocity = 5\neffort = 6\n"))
+                .unwrap_err()
+                .contains("velocity is given for some joints")
+        );
+        assert!(problem(&format!("{base}effort = 3\ngain = 0\n")).unwrap_err().contains("gain 0"));
+        assert!(problem(&format!("{base}effort = 3\ntorque = 4\n")).unwrap_err().contains("unknown field"));
+        assert!(problem("time = { column = 1 }\n[joints]\n").unwrap_err().contains("no [joints.NAME]"));
+    }
+}
