@@ -63,8 +63,8 @@ pub struct InfoArgs {
 
 pub fn info(args: InfoArgs) -> Result<()> {
     let columns = args.columns.as_deref().map(dynforge_recording::table::ColumnMap::read).transpose()?;
-    // `info` shows a table's columns as the map reads them; the gains that turn currents into torques are identify's.
-    let how = dynforge_recording::Reading { columns, gains: Some(Vec::new()), ..Default::default() };
+    // `info` shows a table's columns as the map reads them (a current without a gain as it is).
+    let how = dynforge_recording::Reading { columns, ..Default::default() };
     let (files, bag) = dynforge_recording::read_bag(&args.log, &how)?;
     let info = dynforge_recording::info::Info::of_bag(&args.log, &files, &bag)?;
     print!("{info}");

@@ -94,6 +94,9 @@ impl Signals {
     /// gains, and the joints `fixed`.
     pub fn reading(&self, fixed: &[String]) -> Result<Reading> {
         let columns = self.columns.as_deref().map(ColumnMap::read).transpose()?;
+        if let (Some(map), Some(path)) = (&columns, &self.columns) {
+            map.check_gains(self.gains.is_some()).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        }
         Ok(Reading { columns, gains: self.gains.clone(), fixed: fixed.to_vec() })
     }
 

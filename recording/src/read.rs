@@ -110,7 +110,7 @@ pub fn read_bag(path: &Path, how: &Reading) -> Result<(Vec<PathBuf>, dynforge_sh
                       position, velocity and effort)"
                 .into(),
         })?;
-        crate::table::read(first, map, how.gains.is_some())?
+        crate::table::read(first, map)?
     } else {
         dynforge_shard::read_joined(&files)?
     };

@@ -188,6 +188,24 @@ impl ColumnMap {
         Ok(())
     }
 
+    /// An error unless every joint's effort becomes a torque exactly once: a current needs a gain, from the map or
+    /// from `--gains` (`gains_given`), and a gain in both would be applied twice.
+    pub fn check_gains(&self, gains_given: bool) -> Result<(), String> {
+        for (name, j) in &self.joints {
+            match (j.gain, gains_given) {
+                (Some(_), true) => return Err(format!("joint '{name}': a gain in the column map and in --gains")),
+                (None, false) if j.current.is_some() => {
+                    return Err(format!(
+                        "joint '{name}': its column is a current, and no gain turns it into a torque (give --gains, \
+                         or gain = ... in the column map)"
+                    ));
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
     fn delimiter_for(&self, path: &Path) -> Delimiter {
         self.delimiter.unwrap_or_else(|| match path.extension().and_then(|e| e.to_str()) {
             Some(e) if e.eq_ignore_ascii_case("csv") => Delimiter::Comma,
@@ -210,78 +228,76 @@ struct Layout {
     width: usize,
 }
 
-/// The table at `path` read by `map` as a bag of joint states, each joint's effort times its map's gain. With
-/// `gains_given`, the caller scales the efforts itself (`--gains`): a map's gain would be a second one. Rows that cannot be read and time going backwards are errors naming the
-/// line, or skipped and counted (the map's `bad_rows`); the count and the map as understood are the bag's
-/// [`META_TABLE`] record.
-pub fn read(path: &Path, map: &ColumnMap, gains_given: bool) -> Result<Bag, ReadError> {
+/// The table at `path` read by `map` as a bag of joint states, each joint's effort times its map's gain (a current
+/// without one is read as it is: see [`ColumnMap::check_gains`]). Rows that cannot be read and time going backwards
+/// are errors naming the line, or skipped and counted (the map's `bad_rows`); the count and the map as understood
+/// are the bag's [`META_TABLE`] record.
+pub fn read(path: &Path, map: &ColumnMap) -> Result<Bag, ReadError> {
+    use std::io::{BufRead, Read};
     let file = path.display().to_string();
     let content = |problem: String| ReadError::Content { file: file.clone(), problem };
-    let bytes = std::fs::read(path).map_err(|e| content(e.to_string()))?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| content(format!("not text: {e}")))?;
+    let io = |e: std::io::Error| content(e.to_string());
+    let mut reader = std::io::BufReader::with_capacity(1 << 20, std::fs::File::open(path).map_err(io)?);
     let delimiter = map.delimiter_for(path);
-    let mut lines = text.lines().enumerate().skip(map.skip_rows);
-    let header: Vec<&str> = match map.header {
-        true => {
-            let (_, line) = lines.next().ok_or_else(|| content("no header row".into()))?;
-            fields(line, delimiter).map(|f| f.trim().trim_matches('"')).collect()
+    // Lines before the data: the rows skipped, and the header.
+    let mut line = String::new();
+    for _ in 0..map.skip_rows + usize::from(map.header) {
+        line.clear();
+        if reader.read_line(&mut line).map_err(|e| content(format!("not text: {e}")))? == 0 {
+            return Err(content("no header row".into()));
         }
+    }
+    let header: Vec<&str> = match map.header {
+        true => fields(line.trim_end_matches(['\n', '\r']), delimiter).map(|f| f.trim().trim_matches('"')).collect(),
         false => Vec::new(),
     };
-    let layout = layout(map, &header, gains_given).map_err(content)?;
-    let names: Arc<[String]> = map.joints.keys().cloned().collect();
+    let layout = layout(map, &header).map_err(content)?;
+    let parser = RowParser::new(map, &layout, delimiter);
     let (mut joint_states, mut skipped, mut first_skipped) = (Vec::new(), 0usize, None::<String>);
     let mut last_ns = i64::MIN;
-    let mut values = vec![0.0; layout.width];
-    let mut wanted = vec![false; layout.width];
-    for c in std::iter::once(layout.time)
-        .chain(layout.position.iter().copied())
-        .chain(layout.velocity.iter().flatten().copied())
-        .chain(layout.effort.iter().copied())
-    {
-        wanted[c] = true;
-    }
-    for (index, line) in lines {
-        if line.trim().is_empty() {
-            continue;
+    let mut first_line = map.skip_rows + usize::from(map.header);
+    // Blocks of whole lines, each parsed a piece per core, then taken in order: an hour's table is gigabytes of
+    // text, never held whole.
+    let mut block = Vec::with_capacity(BLOCK + (1 << 16));
+    loop {
+        block.clear();
+        (&mut reader).take(BLOCK as u64).read_to_end(&mut block).map_err(io)?;
+        if block.is_empty() {
+            break;
         }
-        let row = parse_row(line, delimiter, &wanted, &mut values).and_then(|()| {
-            let t = values[layout.time] * layout.scale;
-            if !(t.is_finite() && t.abs() < 9.2e18) {
-                return Err(format!("time {} is not a time", values[layout.time]));
-            }
-            let ns = t.round() as i64;
-            if ns < last_ns {
-                let unit = |ns: i64| ns as f64 / layout.scale;
-                return Err(format!("the time goes backwards ({} after {})", unit(ns), unit(last_ns)));
-            }
-            Ok(ns)
-        });
-        match row {
-            Ok(ns) => {
-                last_ns = ns;
-                let pick = |columns: &[usize], gain: Option<&[f64]>| -> Vec<f64> {
-                    columns.iter().enumerate().map(|(j, &c)| values[c] * gain.map_or(1.0, |g| g[j])).collect()
-                };
-                joint_states.push(JointState {
-                    sec: ns.div_euclid(1_000_000_000) as i32,
-                    nanosec: ns.rem_euclid(1_000_000_000) as u32,
-                    frame_id: String::new(),
-                    name: names.clone(),
-                    position: pick(&layout.position, None),
-                    velocity: layout.velocity.as_deref().map_or_else(Vec::new, |v| pick(v, None)),
-                    effort: pick(&layout.effort, Some(&layout.gain)),
-                });
-            }
-            Err(problem) if map.bad_rows == BadRows::Skip => {
-                skipped += 1;
-                first_skipped.get_or_insert_with(|| format!("line {}: {problem}", index + 1));
-            }
-            Err(problem) => {
-                return Err(content(format!(
-                    "line {}: {problem} (set bad_rows = \"skip\" in the column map to leave such rows out)",
-                    index + 1
-                )));
+        if !block.ends_with(b"\n") {
+            reader.read_until(b'\n', &mut block).map_err(io)?;
+        }
+        let text = std::str::from_utf8(&block).map_err(|e| {
+            let line = first_line + 1 + block[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
+            content(format!("line {line}: not text ({e})"))
+        })?;
+        let pieces = split_lines(text, first_line);
+        first_line += text.bytes().filter(|&b| b == b'\n').count();
+        let parsed = dynforge_proto::parallel::map_in_order(&pieces, |(piece, first)| parser.parse(piece, *first));
+        for (index, row) in parsed.into_iter().flatten() {
+            let row = row.and_then(|m| match m.stamp_ns() {
+                ns if ns < last_ns => {
+                    let unit = |ns: i64| ns as f64 / layout.scale;
+                    Err(format!("the time goes backwards ({} after {})", unit(ns), unit(last_ns)))
+                }
+                _ => Ok(m),
+            });
+            match row {
+                Ok(m) => {
+                    last_ns = m.stamp_ns();
+                    joint_states.push(m);
+                }
+                Err(problem) if map.bad_rows == BadRows::Skip => {
+                    skipped += 1;
+                    first_skipped.get_or_insert_with(|| format!("line {}: {problem}", index + 1));
+                }
+                Err(problem) => {
+                    return Err(content(format!(
+                        "line {}: {problem} (set bad_rows = \"skip\" in the column map to leave such rows out)",
+                        index + 1
+                    )));
+                }
             }
         }
     }
@@ -300,8 +316,86 @@ pub fn read(path: &Path, map: &ColumnMap, gains_given: bool) -> Result<Bag, Read
     Ok(Bag { robot_description: None, joint_states, metadata, crc_checked: false })
 }
 
+/// Bytes of a table read at a time (then to the end of its line).
+const BLOCK: usize = 16 << 20;
+
+/// `text` (whole lines, the first of them the table's line `first`, counted from 0) cut at line ends into a piece
+/// per core, each with the number of its first line.
+fn split_lines(text: &str, first: usize) -> Vec<(&str, usize)> {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let mut pieces = Vec::with_capacity(cores);
+    let (mut rest, mut line) = (text, first);
+    while !rest.is_empty() {
+        let want = (text.len() / cores).max(1).min(rest.len());
+        // Just after the first line end at or past the share (a byte search: `want` may fall inside a character).
+        let cut = rest.as_bytes()[want - 1..].iter().position(|&b| b == b'\n').map_or(rest.len(), |at| want + at);
+        let (piece, after) = rest.split_at(cut);
+        pieces.push((piece, line));
+        line += piece.bytes().filter(|&b| b == b'\n').count();
+        rest = after;
+    }
+    pieces
+}
+
+/// What a row of the table gives, by the map.
+struct RowParser<'a> {
+    layout: &'a Layout,
+    delimiter: Delimiter,
+    names: Arc<[String]>,
+    /// Which columns up to the widest one read are read (the others are not parsed).
+    wanted: Vec<bool>,
+}
+
+impl<'a> RowParser<'a> {
+    fn new(map: &ColumnMap, layout: &'a Layout, delimiter: Delimiter) -> Self {
+        let mut wanted = vec![false; layout.width];
+        for c in std::iter::once(layout.time)
+            .chain(layout.position.iter().copied())
+            .chain(layout.velocity.iter().flatten().copied())
+            .chain(layout.effort.iter().copied())
+        {
+            wanted[c] = true;
+        }
+        RowParser { layout, delimiter, names: map.joints.keys().cloned().collect(), wanted }
+    }
+
+    /// The rows of `piece` (its first line the table's line `first`), blank lines left out: each with its line
+    /// number, and its joint state or why it has none.
+    fn parse(&self, piece: &str, first: usize) -> Vec<(usize, Result<JointState, String>)> {
+        let layout = self.layout;
+        let mut values = vec![0.0; layout.width];
+        let mut out = Vec::with_capacity(piece.len() / 64);
+        for (k, line) in piece.lines().enumerate() {
+            if line.trim().is_empty() {
+                continue;
+            }
+            let row = parse_row(line, self.delimiter, &self.wanted, &mut values).and_then(|()| {
+                let t = values[layout.time] * layout.scale;
+                if !(t.is_finite() && t.abs() < 9.2e18) {
+                    return Err(format!("time {} is not a time", values[layout.time]));
+                }
+                let ns = t.round() as i64;
+                let pick = |columns: &[usize], gain: Option<&[f64]>| -> Vec<f64> {
+                    columns.iter().enumerate().map(|(j, &c)| values[c] * gain.map_or(1.0, |g| g[j])).collect()
+                };
+                Ok(JointState {
+                    sec: ns.div_euclid(1_000_000_000) as i32,
+                    nanosec: ns.rem_euclid(1_000_000_000) as u32,
+                    frame_id: String::new(),
+                    name: self.names.clone(),
+                    position: pick(&layout.position, None),
+                    velocity: layout.velocity.as_deref().map_or_else(Vec::new, |v| pick(v, None)),
+                    effort: pick(&layout.effort, Some(&layout.gain)),
+                })
+            });
+            out.push((first + k, row));
+        }
+        out
+    }
+}
+
 /// The map's columns as indices into a row whose header is `header` (empty without one).
-fn layout(map: &ColumnMap, header: &[&str], gains_given: bool) -> Result<Layout, String> {
+fn layout(map: &ColumnMap, header: &[&str]) -> Result<Layout, String> {
     let index = |c: &Column| -> Result<usize, String> {
         match c {
             Column::Number(n) => Ok(n - 1),
@@ -315,20 +409,7 @@ fn layout(map: &ColumnMap, header: &[&str], gains_given: bool) -> Result<Layout,
     let all = |f: &dyn Fn(&JointColumns) -> Option<&Column>| -> Result<Vec<usize>, String> {
         joints.iter().map(|(_, j)| index(f(j).expect("checked with the map"))).collect()
     };
-    let mut gain = Vec::new();
-    for (name, j) in &joints {
-        gain.push(match (j.gain, gains_given) {
-            (Some(_), true) => return Err(format!("joint '{name}': a gain in the column map and in --gains")),
-            (Some(g), false) => g,
-            (None, false) if j.current.is_some() => {
-                return Err(format!(
-                    "joint '{name}': its column is a current, and no gain turns it into a torque (give --gains, or \
-                     gain = ... in the column map)"
-                ));
-            }
-            (None, _) => 1.0,
-        });
-    }
+    let gain = joints.iter().map(|(_, j)| j.gain.unwrap_or(1.0)).collect();
     let position = all(&|j| Some(&j.position))?;
     let velocity = match joints.iter().all(|(_, j)| j.velocity.is_some()) {
         true => Some(all(&|j| j.velocity.as_ref())?),
@@ -427,7 +508,7 @@ mod tests {
     fn rows_become_joint_states_in_joint_torque_with_the_map_s_time_unit() {
         let dir = tempfile::tempdir().unwrap();
         let path = table(dir.path(), "log.csv", "0,1,2,3,4,5,6,7\n\n2,1.5,2,3,4,5,6,8,99\n");
-        let bag = read(&path, &map(MAP), false).unwrap();
+        let bag = read(&path, &map(MAP)).unwrap();
         assert_eq!(bag.joint_states.len(), 2);
         let m = &bag.joint_states[1];
         assert_eq!((m.sec, m.nanosec), (0, 2_000_000));
@@ -443,24 +524,38 @@ mod tests {
     }
 
     #[test]
+    fn lines_are_cut_into_pieces_at_line_ends_with_their_numbers() {
+        let text = "t,ä\n1,2\n\n3,4\n5,6";
+        let pieces = split_lines(text, 7);
+        assert_eq!(pieces.iter().map(|p| p.0).collect::<String>(), text);
+        assert!(pieces.iter().rev().skip(1).all(|p| p.0.ends_with('\n')), "{pieces:?}");
+        for (piece, first) in &pieces {
+            for (k, line) in piece.lines().enumerate() {
+                let whole = text.lines().position(|l| std::ptr::eq(l, line) || l.as_ptr() == line.as_ptr());
+                assert_eq!(Some(first + k - 7), whole, "{line:?} in {pieces:?}");
+            }
+        }
+    }
+
+    #[test]
     fn bad_rows_name_the_line_or_are_skipped_and_counted_when_asked() {
         let dir = tempfile::tempdir().unwrap();
         let text = "0,1,2,3,4,5,6,7\n1,1,2,3\n2,1,x,3,4,5,6,7\n1.5,1,2,3,4,5,6,7\n3,1,2,3,4,5,6,7\n";
         let path = table(dir.path(), "log.csv", text);
-        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        let e = read(&path, &map(MAP)).unwrap_err().to_string();
         assert!(e.starts_with(&format!("{}: line 2: 4 column(s)", path.display())) && e.contains("bad_rows"), "{e}");
         let skip = map(&format!("bad_rows = \"skip\"\n{MAP}"));
-        let bag = read(&path, &skip, false).unwrap();
+        let bag = read(&path, &skip).unwrap();
         assert_eq!(bag.joint_states.iter().map(|m| m.nanosec).collect::<Vec<_>>(), [0, 1_500_000, 3_000_000]);
         let record = &bag.metadata[META_TABLE];
         assert_eq!(record["skipped_rows"], "2");
         assert!(record["first_skipped"].starts_with("line 2: 4 column(s)"), "{}", record["first_skipped"]);
         // A row whose time goes backwards is named by its line too.
         let path = table(dir.path(), "back.csv", "0,1,2,3,4,5,6,7\n5,1,2,3,4,5,6,7\n4,1,2,3,4,5,6,7\n");
-        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        let e = read(&path, &map(MAP)).unwrap_err().to_string();
         assert!(e.contains("line 3: the time goes backwards (4 after 5)"), "{e}");
         let path = table(dir.path(), "word.csv", "0,1,2,3,4,5,6,nan\n0,1,2,3,4,5,nan,7\n");
-        let e = read(&path, &map(MAP), false).unwrap_err().to_string();
+        let e = read(&path, &map(MAP)).unwrap_err().to_string();
         assert!(e.contains("line 2: column 7: NaN is not a finite number"), "{e}");
     }
 
@@ -476,17 +571,19 @@ mod tests {
             current = "i"
         "#;
         let path = table(dir.path(), "log.txt", "# logger v2\nstamp  i  q\n0.5 3 1\n  0.75\t4 2  \n");
-        let e = read(&path, &map(named), false).unwrap_err().to_string();
+        let e = map(named).check_gains(false).unwrap_err();
         assert!(e.contains("joint 'a': its column is a current") && e.contains("--gains"), "{e}");
-        let bag = read(&path, &map(named), true).unwrap();
+        assert_eq!(map(named).check_gains(true), Ok(()));
+        let bag = read(&path, &map(named)).unwrap();
         let m = &bag.joint_states[1];
         assert_eq!((m.sec, m.nanosec, m.position[0], m.effort[0]), (0, 750_000_000, 2.0, 4.0));
         assert!(m.velocity.is_empty());
-        let gained = named.replace("current = \"i\"", "current = \"i\"\ngain = 3.0");
-        let e = read(&path, &map(&gained), true).unwrap_err().to_string();
-        assert!(e.contains("a gain in the column map and in --gains"), "{e}");
+        assert!(bag.metadata[META_TABLE]["columns"].ends_with("a: position 3 current 2 x --gains"));
+        let gained = map(&named.replace("current = \"i\"", "current = \"i\"\ngain = 3.0"));
+        assert!(gained.check_gains(true).unwrap_err().contains("a gain in the column map and in --gains"));
+        assert_eq!(read(&path, &gained).unwrap().joint_states[1].effort, [12.0]);
         let wrong = named.replace("\"q\"", "\"pos\"");
-        let e = read(&path, &map(&wrong), true).unwrap_err().to_string();
+        let e = read(&path, &map(&wrong)).unwrap_err().to_string();
         assert!(e.contains("the header has no column 'pos'"), "{e}");
     }
 

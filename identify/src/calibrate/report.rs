@@ -365,7 +365,7 @@ impl std::fmt::Display for Identification {
             self.rows,
             match self.velocity.step {
                 1 => String::new(),
-                k => format!(" (every {k}th sample: at least 4 per period of the low-pass cut-off)"),
+                k => format!(" (every {k}{} sample: at least 4 per period of the low-pass cut-off)", ordinal_suffix(k)),
             }
         )?;
         let v = &self.velocity;
@@ -434,6 +434,17 @@ impl std::fmt::Display for Identification {
             writeln!(f, "note: {n}")?;
         }
         Ok(())
+    }
+}
+
+/// The English ordinal's ending of `k` (2nd, 3rd, 11th, 12th, 21st).
+fn ordinal_suffix(k: usize) -> &'static str {
+    match (k % 10, k % 100) {
+        (_, 11..=13) => "th",
+        (1, _) => "st",
+        (2, _) => "nd",
+        (3, _) => "rd",
+        _ => "th",
     }
 }
 
