@@ -46,3 +46,32 @@ logs=("$out"/ur-20_02_10-30sec_12harm.csv "$out"/ur-20_02_12-40sec_12harm.csv "$
   --holdout "$out/ur-20_01_17-ptp_10_points.csv" --out "$out/ur10e.calibrated.urdf" "$@" | tee "$out/identify.txt"
 echo
 echo "UR's published masses [kg]: shoulder 7.369, upper arm 13.051, forearm 3.989, wrist 1 2.1, wrist 2 1.98, wrist 3 0.615"
+
+# The same logs as ROS 2 bags, MCAP (mcap_ros2's writer) and Humble's sqlite3 (rosbags): the same URDF and JSON.
+py=$(scripts/venv.sh)
+columns='"shoulder_pan_joint": [2, 8, 14], "shoulder_lift_joint": [3, 9, 15], "elbow_joint": [4, 10, 16],
+  "wrist_1_joint": [5, 11, 17], "wrist_2_joint": [6, 12, 18], "wrist_3_joint": [7, 13, 19]'
+gain_map=$(for k in 0 1 2 3 4 5; do printf '"%s": %s,' "${joints[$k]}" "${gains[$k]}"; done)
+run() { "$bin/dynforge" identify "$@" --urdf "$repo/URe/urdf/ur10e.urdf" --json; }
+for log in "${logs[@]}"; do
+  name=$(basename "$log" .csv)
+  echo "{\"mcap\": \"$out/$name.mcap\", \"db3\": \"$out/${name}_db3\", \"table\": {\"path\": \"$log\", \"time\": 1,
+    \"joints\": {$columns}, \"gains\": {${gain_map%,}}}}" | "$py" tests/reference/convert_log.py > /dev/null
+done
+run "${logs[@]}" --columns "$out/ur10e.columns.toml" --out "$out/csv.urdf" > "$out/csv.json"
+run "${logs[@]/%.csv/.mcap}" --out "$out/mcap.urdf" > "$out/mcap.json"
+run "${logs[@]/%.csv/_db3}" --out "$out/db3.urdf" > "$out/db3.json"
+"$py" - "$out" <<'EOF'
+import json, sys
+out = sys.argv[1]
+def result(form):
+    r = json.load(open(f"{out}/{form}.json"))
+    # What names the files is the one thing a form changes.
+    r.pop("logs"), r.pop("urdf")
+    r["notes"] = [n.split(": ", 1)[1] for n in r["notes"]]
+    return r, open(f"{out}/{form}.urdf", "rb").read()
+csv = result("csv")
+for form in ["mcap", "db3"]:
+    same = result(form) == csv
+    print(f"{form} bag against the CSV tables: URDF and JSON {'byte-identical' if same else 'DIFFERENT'}")
+EOF

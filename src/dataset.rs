@@ -59,6 +59,9 @@ pub struct InfoArgs {
     /// The column map of a table (see `dynforge identify --help`).
     #[arg(long, value_name = "MAP.toml")]
     columns: Option<PathBuf>,
+    /// The robot's URDF, for what `identify` and `estimate` would read (default: the log's /robot_description).
+    #[arg(long)]
+    urdf: Option<PathBuf>,
 }
 
 pub fn info(args: InfoArgs) -> Result<()> {
@@ -69,7 +72,9 @@ pub fn info(args: InfoArgs) -> Result<()> {
     let info = dynforge_recording::info::Info::of_bag(&args.log, &files, &bag)?;
     print!("{info}");
     let described = matches!(info.robot, Some(Ok(_)));
-    print!("{}", dynforge_identify::calibrate::Readiness::of(files, bag, described));
+    let given = crate::identify::read_urdf(args.urdf.as_deref())?;
+    let document = given.as_ref().map(|(text, source)| (text.as_str(), source.as_str()));
+    print!("{}", dynforge_identify::calibrate::Readiness::of(files, bag, described, document));
     Ok(())
 }
 

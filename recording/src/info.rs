@@ -156,6 +156,7 @@ impl std::fmt::Display for Info {
             let title = match name.as_str() {
                 META_JOB => "Job",
                 META_LABELS => "Labels",
+                crate::table::META_TABLE => "Table (the column map as read)",
                 other => other,
             };
             let short = |v: &str| match v.parse::<f64>() {

@@ -4,7 +4,10 @@ logs come in, message for message, by tools that are not dynforge's: a rosbag2 d
 joint states, with motor currents instead of torques when gains are given, as RTDE or a lab logger writes them.
 
 stdin (JSON):
-  mcap     the bag read (its /joint_states and /robot_description)
+  mcap     the bag read (its /joint_states and /robot_description); written instead, from the table, with "table"
+  table    optional: {"path", "time": column, "joints": {name: [position, velocity, effort]}, "gains": {name: g}}
+           (columns from 1, time in s, the effort times its gain): a headerless CSV read into joint states, which are
+           written to "mcap" (by mcap_ros2) and to "db3"
   db3      optional: the rosbag2 directory to write
   csv      optional: the table to write: t [s], then per joint position, velocity (if logged), effort; a header row
   gains    optional: {joint: gain}: the table's effort column, and the db3 bag's effort, is effort / gain (a current)
@@ -81,9 +84,39 @@ def write_csv(messages, req):
     return len(rows), stale, skipped
 
 
+def from_table(spec, mcap):
+    """The table's rows as joint-state messages, written to the MCAP bag `mcap` by mcap_ros2's writer; the messages
+    as `read` gives them."""
+    import csv
+    from mcap_ros2.writer import Writer as McapWriter
+
+    names = list(spec["joints"])
+    gains = spec.get("gains", {})
+    definition = open(os.path.join(os.path.dirname(__file__), "..", "..", "proto", "src", "schemas",
+                                   "sensor_msgs_JointState.ros2msg")).read()
+    with open(mcap, "wb") as f:
+        writer = McapWriter(f)
+        schema = writer.register_msgdef("sensor_msgs/msg/JointState", definition)
+        with open(spec["path"]) as table:
+            for i, row in enumerate(csv.reader(table)):
+                ns = round(float(row[spec["time"] - 1]) * 1e9)
+                value = lambda c: float(row[c - 1])
+                cols = [spec["joints"][n] for n in names]
+                msg = {
+                    "header": {"stamp": {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}, "frame_id": ""},
+                    "name": names,
+                    "position": [value(c[0]) for c in cols],
+                    "velocity": [value(c[1]) for c in cols],
+                    "effort": [value(c[2]) * gains.get(n, 1.0) for n, c in zip(names, cols)],
+                }
+                writer.write_message("/joint_states", schema, msg, log_time=ns, publish_time=ns, sequence=i)
+        writer.finish()
+    return read(mcap)
+
+
 def main():
     req = json.load(sys.stdin)
-    messages = read(req["mcap"])
+    messages = from_table(req["table"], req["mcap"]) if req.get("table") else read(req["mcap"])
     result = {}
     if req.get("db3"):
         write_db3(messages, req["db3"], req.get("gains", {}))

@@ -22,16 +22,22 @@ pub struct Readiness {
 }
 
 impl Readiness {
-    /// What each command would make of the log whose `files` hold the messages `bag` (read once by the caller);
-    /// `described` says whether it has a `/robot_description` (else both need the robot's URDF, and what they would
+    /// What each command would make of the log whose `files` hold the messages `bag` (read once by the caller),
+    /// for the robot of the URDF `document` (text, source) when given, else of the log's `/robot_description`
+    /// (`described`: whether it has a readable one; without either, both need the robot's URDF, and what they would
     /// read depends on it).
-    pub fn of(files: Vec<PathBuf>, bag: Bag, described: bool) -> Readiness {
-        if !described {
+    pub fn of(files: Vec<PathBuf>, bag: Bag, described: bool, document: Option<(&str, &str)>) -> Readiness {
+        if !described && document.is_none() {
             let why = "the log has no readable /robot_description: give the robot's URDF with --urdf".to_string();
             return Readiness { identify: Err(why.clone()), estimate: Err(why) };
         }
-        let estimate = estimate(&files, &bag);
-        let identify = log_of(files, bag, None, &Reading::default()).map_err(|e| e.to_string()).and_then(identify);
+        let model = document.map(|(text, source)| dynforge_robot::urdf::parse(text, source));
+        let estimate = match model {
+            Some(Err(e)) => Err(e.to_string()),
+            Some(Ok(model)) => estimate(&files, &bag, Some(&model)),
+            None => estimate(&files, &bag, None),
+        };
+        let identify = log_of(files, bag, document, &Reading::default()).map_err(|e| e.to_string()).and_then(identify);
         Readiness { identify, estimate }
     }
 }
@@ -97,14 +103,14 @@ fn identify(log: Log) -> Result<String, String> {
     Ok(said)
 }
 
-fn estimate(files: &[PathBuf], bag: &Bag) -> Result<String, String> {
+fn estimate(files: &[PathBuf], bag: &Bag, model: Option<&dynforge_robot::Model>) -> Result<String, String> {
     let job = bag.metadata.get(dynforge_proto::shard::META_JOB);
     if job.is_some_and(|j| j.contains_key("family")) {
         return Err("a shard of a robot's family (`generate --urdf`), labelled with its standard parameters: the \
                     estimators learn the generator's robots; `identify` calibrates it"
             .into());
     }
-    let rec = recording_of(&files[0], bag, None).map_err(|e| e.to_string())?;
+    let rec = recording_of(&files[0], bag, model).map_err(|e| e.to_string())?;
     Ok(format!(
         "a {}-joint robot, {:.1} s of motion: with a model trained on its family (dynforge estimate --checkpoint RUN)",
         rec.model.dof(),
