@@ -80,8 +80,9 @@ pub enum CalibrateError {
     StillJoints { joints: String, ranges: String, fix: String },
     #[error(
         "the logged effort is not the joint torque the URDF predicts: {joints} (the effort over the URDF's torque, \
-         least squares, where the URDF's torque has the effort's shape: correlation {MIN_CORRELATION} or more). If the \
-         log holds motor currents, give --gains (joint torque per unit of effort, one per joint in the URDF's order; \
+         friction taken out of both, where the URDF's torque has the effort's shape: partial correlation \
+         {MIN_CORRELATION} or more; a torque's are positive, about 1 on most joints). If the log holds motor \
+         currents, give --gains (joint torque per unit of effort, one per joint in the URDF's order; \
          these scales suggest about {suggested}); a negative scale is a joint whose sign differs between the log and \
          the URDF. Scales of every joint: {all}"
     )]
@@ -476,50 +477,73 @@ pub(crate) fn model_with(model: &Model, pi: &[f64]) -> Result<Model, IdentifyErr
 }
 
 /// An error when a joint's residual is far above its noise floor (a model that does not explain the log).
-/// Correlation between a joint's effort and the URDF's torque above which the URDF is taken to describe the
-/// effort's shape, so that its scale tells the effort's unit: the gravity-loaded joints of any arm (0.9 and more on
-/// the MuJoCo UR5 and Panda from nominal URDFs 30 % off); a joint moved by friction mostly (which a URDF rarely
-/// states) shows far less, and its scale says nothing.
+/// Partial correlation between a joint's effort and the URDF's torque (each with the joint's Coulomb and viscous
+/// friction taken out) above which the URDF is taken to describe the effort, so that its scale tells the effort's
+/// unit: the gravity-loaded joints of any arm (0.9 and more on the MuJoCo UR5 and Panda from nominal URDFs 30 % off).
+/// A joint whose effort is friction and noise mostly shows far less, and its scale says nothing.
 pub const MIN_CORRELATION: f64 = 0.8;
 
-/// Scales of the effort over the URDF's torque accepted as torque: a URDF 50 % off, or missing a motor's rotor
-/// inertia (about twice a UR10e's base inertia), stays within; a current in A against a gear's 5-100 N m / A does not.
+/// Typical scales of the effort over the URDF's torque (the median over the joints it describes) accepted as
+/// torque: a URDF 50 % off stays within, and so does one that lacks the motors' rotor inertia, which a few joints
+/// show as a scale of 1.5 (a UR10e's base) to 4.5 (its wrist 2) but the gravity-loaded ones do not; a current in A
+/// against gears of 5-100 N m / A does not.
 pub const EFFORT_SCALE: (f64, f64) = (1.0 / 3.0, 3.0);
 
-/// An error unless the logged effort is in the URDF's joint torques: for every joint whose effort the URDF's torque
-/// describes (correlation [`MIN_CORRELATION`] or more), the least-squares scale of the one onto the other is within
-/// [`EFFORT_SCALE`] (currents, or another unit, are not) and positive (a flipped sign is not). Judged on `ne` (the
-/// logs' normal equations) with the URDF's own parameters, before any fit.
+/// An error unless the logged effort is in the URDF's joint torques: over the joints whose effort the URDF's torque
+/// describes (partial correlation [`MIN_CORRELATION`] or more), the scale of the one onto the other is positive on
+/// every one (a flipped sign is not) and within [`EFFORT_SCALE`] on the median (currents, or another unit, are not:
+/// a unit scales every joint alike, where a missing rotor inertia scales a few). Judged on `ne` (the
+/// logs' normal equations) with the URDF's rigid-body parameters, each joint's effort regressed on its URDF torque,
+/// its Coulomb column and its viscous column together (the URDF's friction, usually none, is what is unknown most):
+/// the scale and the partial correlation are the URDF torque's, friction taken out of both sides (Frisch-Waugh).
 fn check_effort_scale(ne: &NormalEquations, model: &Model) -> Result<(), CalibrateError> {
-    let pi = DVector::from_vec(dynamic_parameters(model));
+    let n = model.dof();
+    let mut rigid = dynamic_parameters(model);
+    for j in 0..n {
+        let at = friction_index(n, j);
+        rigid[at..at + 2].fill(0.0);
+    }
+    let pi = DVector::from_vec(rigid);
     let mut all = Vec::new();
-    let (mut wrong, mut suggested) = (Vec::new(), Vec::new());
+    let (mut scales, mut suggested) = (Vec::new(), Vec::new());
     for (j, joint) in model.joints().iter().enumerate() {
         let (a, b, c, _) = ne.joint(j);
-        let (predicted, cross) = (pi.dot(&(a * &pi)), b.dot(&pi));
-        if predicted <= 0.0 || c <= 0.0 {
+        let at = friction_index(n, j);
+        // Gram entries of (effort, URDF torque) with friction's two columns, and the friction columns' own.
+        let api = a * &pi;
+        let (uu, tu) = (pi.dot(&api), b.dot(&pi));
+        let ff = nalgebra::Matrix2::new(a[(at, at)], a[(at, at + 1)], a[(at + 1, at)], a[(at + 1, at + 1)]);
+        let (uf, tf) = (nalgebra::Vector2::new(api[at], api[at + 1]), nalgebra::Vector2::new(b[at], b[at + 1]));
+        let inverse = ff.try_inverse().unwrap_or_else(nalgebra::Matrix2::zeros);
+        let (uu, tu, tt) = (uu - uf.dot(&(inverse * uf)), tu - tf.dot(&(inverse * uf)), c - tf.dot(&(inverse * tf)));
+        if uu <= 1e-12 * pi.dot(&api).max(f64::MIN_POSITIVE) || tt <= 0.0 {
             all.push(format!("'{}' -", joint.name));
+            suggested.push("?".into());
             continue;
         }
-        let (scale, correlation) = (cross / predicted, cross / (c * predicted).sqrt());
+        let (scale, correlation) = (tu / uu, tu / (tt * uu).sqrt());
         all.push(format!("'{}' {scale:.3} (correlation {correlation:.2})", joint.name));
         let described = correlation.abs() >= MIN_CORRELATION;
-        if described && !(EFFORT_SCALE.0..=EFFORT_SCALE.1).contains(&scale) {
-            wrong.push(format!("joint '{}' {scale:.3}", joint.name));
+        if described {
+            scales.push((joint.name.as_str(), scale));
         }
         suggested.push(match described {
             true => format!("{:.3}", 1.0 / scale),
             false => "?".into(),
         });
     }
-    match wrong.is_empty() {
-        true => Ok(()),
-        false => Err(CalibrateError::EffortScale {
-            joints: wrong.join(", "),
-            suggested: suggested.join(","),
-            all: all.join(", "),
-        }),
-    }
+    let flipped: Vec<String> =
+        scales.iter().filter(|(_, s)| *s < 0.0).map(|(name, s)| format!("joint '{name}' {s:.3}")).collect();
+    let mut magnitudes: Vec<f64> = scales.iter().map(|(_, s)| s.abs()).collect();
+    let typical = dynforge_recording::samples::median(&mut magnitudes);
+    let wrong = match typical {
+        _ if !flipped.is_empty() => flipped,
+        Some(m) if !(EFFORT_SCALE.0..=EFFORT_SCALE.1).contains(&m) => {
+            scales.iter().map(|(name, s)| format!("joint '{name}' {s:.3}")).collect()
+        }
+        _ => return Ok(()),
+    };
+    Err(CalibrateError::EffortScale { joints: wrong.join(", "), suggested: suggested.join(","), all: all.join(", ") })
 }
 
 fn check_explained(id: &Identification, model: &Model) -> Result<(), CalibrateError> {

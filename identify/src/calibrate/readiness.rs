@@ -9,7 +9,7 @@ use dynforge_recording::{Bag, recording_of};
 
 use super::MIN_ROWS;
 use crate::REST_SPEED;
-use crate::signals::{VelocitySource, choose_velocity};
+use crate::signals::{Conditioning, VelocitySource, choose_signals};
 
 /// Rates the identification is tested at [Hz]: a log outside them is read, with a caution.
 pub const TESTED_RATES: (f64, f64) = (100.0, 1000.0);
@@ -84,9 +84,11 @@ fn identify(log: Log) -> Result<String, String> {
         return Err(format!("the effort of {} is zero throughout: no torques to calibrate from", silent.join(", ")));
     }
     let rate = 1.0 / log.dt;
-    let velocity = match choose_velocity(&log.segments[0], log.velocity_logged, None) {
-        (VelocitySource::Logged, why) => format!("velocity as logged ({why})"),
-        (VelocitySource::Positions, why) => format!("velocity from the positions ({why})"),
+    let segments: Vec<&dynforge_recording::JointTrajectory> = log.segments.iter().collect();
+    let velocity = match choose_signals(&segments, log.dt, log.velocity_logged, &Conditioning::default()) {
+        (VelocitySource::Logged, None, why) => format!("velocity as logged ({why})"),
+        (VelocitySource::Logged, Some(fc), why) => format!("velocity as logged, low-passed at {fc:.1} Hz ({why})"),
+        (VelocitySource::Positions, _, why) => format!("velocity from the positions ({why})"),
     };
     let mut said = format!(
         "{} joints, {} samples in {} stretch(es) at {rate:.1} Hz; {velocity}",
