@@ -59,18 +59,23 @@ fn identify(log: &Path, nominal: &Path, out: &Path, extra: &[&str]) -> Value {
     result
 }
 
+/// The python of the references, the UR5's nominal URDF and a 10 s log of it (1 kHz, held effort, noisy as drivers
+/// log), in `dir`; `None` without the references.
+fn ur5_case(dir: &Path) -> Option<(String, PathBuf, PathBuf)> {
+    let py = dynforge_testkit::reference_python()?;
+    let f = Harness::new(py.clone(), dir, &UR5);
+    Some((py, f.nominal(3), f.log(&UR5, 1, 10.0, "held", LogKind::Noisy, 1000.0)))
+}
+
 fn joint<'a>(result: &'a Value, name: &str) -> &'a Value {
     result["joints"].as_array().unwrap().iter().find(|j| j["name"] == name).unwrap()
 }
 
 #[test]
 fn a_humble_bag_and_a_table_identify_byte_for_byte_as_the_mcap_bag_of_the_same_messages() {
-    let Some(py) = dynforge_testkit::reference_python() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let f = Harness::new(py.clone(), dir, &UR5);
-    let nominal = f.nominal(3);
-    let mcap = f.log(&UR5, 1, 10.0, "held", LogKind::Noisy, 1000.0);
+    let Some((py, nominal, mcap)) = ur5_case(dir) else { return };
     let (db3, csv) = (dir.join("humble"), dir.join("table.csv"));
     convert(&py, &mcap, json!({"db3": db3, "csv": csv}));
     let map = column_map(&csv, false);
@@ -98,12 +103,9 @@ fn a_humble_bag_and_a_table_identify_byte_for_byte_as_the_mcap_bag_of_the_same_m
 
 #[test]
 fn currents_without_gains_are_refused_before_the_fit_and_with_them_identify_as_torques() {
-    let Some(py) = dynforge_testkit::reference_python() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
-    let f = Harness::new(py.clone(), dir, &UR5);
-    let nominal = f.nominal(3);
-    let mcap = f.log(&UR5, 1, 10.0, "held", LogKind::Noisy, 1000.0);
+    let Some((py, nominal, mcap)) = ur5_case(dir) else { return };
     let gains: serde_json::Map<String, Value> =
         UR5.friction.iter().zip(GAINS).map(|((name, _, _), g)| (name.to_string(), json!(g))).collect();
     let (db3, csv) = (dir.join("currents"), dir.join("currents.csv"));
