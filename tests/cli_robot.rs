@@ -79,6 +79,14 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(!out.status.success() && err.contains(missing.to_str().unwrap()), "{err}");
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    // The same log twice, however spelt, is refused before it is read.
+    std::fs::create_dir(dir.path().join("logs")).unwrap();
+    let log = dir.path().join("logs/twice.mcap");
+    std::fs::write(&log, b"not read").unwrap();
+    let again = dir.path().join("logs/./twice.mcap");
+    let out = dynforge(&["identify", log.to_str().unwrap(), again.to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains("twice.mcap: given twice (also as"), "{err}");
     // A directory is read as a rosbag2 bag, and one without an MCAP file says so.
     let out = dynforge(&["identify", dir.path().to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();

@@ -251,6 +251,20 @@ pub fn position_ranges(log: &Log) -> Vec<(f64, f64)> {
 
 /// The logs of one robot read together: each must show the same robot as the first (same URDF, same welds).
 pub fn read_logs(paths: &[PathBuf], document: Option<(&str, &str)>, how: &Reading) -> Result<Vec<Log>, ReadError> {
+    // One log given twice (an overlapping shell glob) would count its samples twice, and every spread would shrink by
+    // sqrt(2) for nothing.
+    let resolved: Vec<PathBuf> = paths.iter().map(|p| dynforge_proto::run_dir::resolve(p)).collect();
+    for (k, path) in resolved.iter().enumerate() {
+        if let Some(first) = resolved[..k].iter().position(|p| p == path) {
+            return Err(ReadError::Content {
+                file: paths[k].display().to_string(),
+                problem: format!(
+                    "given twice (also as {}): each log counts once, or its samples would weigh double",
+                    paths[first].display()
+                ),
+            });
+        }
+    }
     let mut logs: Vec<Log> = Vec::with_capacity(paths.len());
     for path in paths {
         let (files, bag) = read_bag(path, how)?;
