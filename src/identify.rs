@@ -39,8 +39,8 @@ pub struct IdentifyArgs {
 #[derive(Args)]
 pub struct Output {
     /// Logs held out of the calibration: the torque error of the URDF as given and of the calibrated one on them is
-    /// reported.
-    #[arg(long, value_name = "LOG")]
+    /// reported. Takes every log that follows it (`--holdout a.mcap b.mcap`), up to the next flag.
+    #[arg(long, value_name = "LOG", num_args = 1..)]
     pub holdout: Vec<PathBuf>,
     /// Where to write the calibrated URDF (default: the first log with extension .calibrated.urdf).
     #[arg(long)]

@@ -95,6 +95,20 @@ fn a_humble_bag_and_a_table_identify_byte_for_byte_as_the_mcap_bag_of_the_same_m
     let info = dynforge(&["info", csv.to_str().unwrap(), "--columns", map.to_str().unwrap()]);
     let text = String::from_utf8_lossy(&info.stdout);
     assert!(text.contains("shoulder_pan_joint: position 2 velocity 3 effort 4"), "{text}");
+    // Several held-out logs after one flag; one without motion is said to leave nothing to compare, not a perfect fit.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut rows = text.lines();
+    let (header, first) = (rows.next().unwrap(), rows.next().unwrap().split_once(',').unwrap().1);
+    let still: String = (0..300).map(|k| format!("{},{first}\n", k as f64 * 1e-3)).collect();
+    let still_csv = dir.join("still.csv");
+    std::fs::write(&still_csv, format!("{header}\n{still}")).unwrap();
+    let (db3_s, csv_s, map_s) = (db3.to_str().unwrap(), csv.to_str().unwrap(), map.to_str().unwrap());
+    let both = identify(&mcap, &nominal, &dir.join("two.urdf"), &["--holdout", db3_s, csv_s, "--columns", map_s]);
+    assert_eq!(both["held_out"]["logs"].as_array().map(Vec::len), Some(2), "{}", both["held_out"]);
+    let still = ["--holdout", still_csv.to_str().unwrap(), "--columns", map_s];
+    let none = identify(&mcap, &nominal, &dir.join("still.urdf"), &still);
+    assert!(none["held_out"].is_null(), "{}", none["held_out"]);
+    assert!(none["notes"].as_array().unwrap().iter().any(|n| n.as_str().unwrap().contains("hold no motion")));
     // Without its map a table is refused, saying what is missing.
     let o = dynforge(&["identify", csv.to_str().unwrap(), "--urdf", nominal.to_str().unwrap()]);
     let e = String::from_utf8_lossy(&o.stderr);

@@ -76,11 +76,18 @@ pub fn write_calibrated(
         true => None,
         false => {
             let ne = held_out(holdout, document, options, &id)?;
-            Some(HeldOut {
-                logs: holdout.to_vec(),
-                nrmse_urdf: ne.mean_nrmse(&nominal(&log.model)),
-                nrmse_calibrated: ne.mean_nrmse(&dynamic_parameters(&written)),
-            })
+            match ne.rows() {
+                // A log with no joint in motion has no torque error to speak of (not a perfect one).
+                0 => {
+                    id.notes.push("the held-out log(s) hold no motion: no torques to compare the URDFs on".into());
+                    None
+                }
+                _ => Some(HeldOut {
+                    logs: holdout.to_vec(),
+                    nrmse_urdf: ne.mean_nrmse(&nominal(&log.model)),
+                    nrmse_calibrated: ne.mean_nrmse(&dynamic_parameters(&written)),
+                }),
+            }
         }
     };
     Ok(Calibrated { id, urdf: out.to_path_buf(), held_out })
