@@ -76,8 +76,19 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         reading: args.signals.reading(&fixed)?,
     };
 
-    // The files first, then the bag: what cannot be used is refused before minutes of simulation.
+    // The files first, then the bag: what cannot be used is refused before minutes of simulation. The URDF written
+    // lands in none of the inputs, the excitations and the families' cache included.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
+    dynforge_recording::check_not_an_input(&out, &[args.excitation.clone()])?;
+    let cache = cache_dir(args.cache.as_deref())?;
+    // The cache may not exist yet: inside it is inside it all the same.
+    if dynforge_proto::run_dir::resolve(&out).starts_with(dynforge_proto::run_dir::resolve(&cache)) {
+        anyhow::bail!(
+            "{}: this output would overwrite the input {} (the families' cache) or a file of it: choose another --out",
+            out.display(),
+            cache.display()
+        );
+    }
     let (family, sources) = dynforge_worker::family::prepare(
         &args.urdf,
         &args.excitation,
@@ -90,7 +101,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let degradation = Degradation::of(&read, id.effort);
 
     let key = json!({"family": family, "robots": args.robots, "version": env!("CARGO_PKG_VERSION")});
-    let dir = cache_dir(args.cache.as_deref())?.join("families").join(hex(&key));
+    let dir = cache.join("families").join(hex(&key));
     let cfg = GenerateConfig {
         dir: dir.clone(),
         seed: 0,
