@@ -79,7 +79,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     // The files first, then the bag: what cannot be used is refused before minutes of simulation. The URDF written
     // lands in none of the inputs, the excitations and the families' cache included.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
-    dynforge_recording::check_not_an_input(&out, &[args.excitation.clone()])?;
+    dynforge_recording::check_not_an_input(&out, std::slice::from_ref(&args.excitation))?;
     let cache = cache_dir(args.cache.as_deref())?;
     // The cache may not exist yet: inside it is inside it all the same.
     if dynforge_proto::run_dir::resolve(&out).starts_with(dynforge_proto::run_dir::resolve(&cache)) {
