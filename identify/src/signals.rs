@@ -111,8 +111,8 @@ pub struct VelocityChoice {
     pub reason: String,
 }
 
-/// Samples per torque row: signals low-passed at `cutoff` (from positions or a logged velocity) hold nothing that rows [`ROWS_PER_CUTOFF_PERIOD`] times
-/// per period of the cut-off miss (the filtered noise is as band-limited as the motion), so a 1 kHz log filtered at
+/// Samples per torque row: signals low-passed at `cutoff` (from positions or a logged velocity) hold nothing that rows
+/// [`ROWS_PER_CUTOFF_PERIOD`] times per period of the cut-off miss (the filtered noise is as band-limited as the motion), so a 1 kHz log filtered at
 /// 25 Hz is summed every 10th sample at a tenth of the cost and the same estimate; unfiltered signals (the logged
 /// velocity) carry white effort noise that every sample averages, and are summed whole.
 pub fn row_step(source: VelocitySource, cutoff: Option<f64>, dt: f64) -> usize {
@@ -207,7 +207,7 @@ pub fn choose_signals(
 /// The low-pass cut-off [Hz] at which the logged velocity's white noise leaves the acceleration within
 /// [`ACCELERATION_NOISE`] of its own spread (the most noisy joint's), or `None` when that is above the highest
 /// cut-off the log could use: white noise of variance `s^2` differentiated below `fc` has the variance
-/// `(2 pi)^2 (2 s^2 / fs) fc^3 / 3`. The noise is the median absolute second difference over `0.6745 sqrt(6)`.
+/// `(2 pi)^2 (2 s^2 / fs) fc^3 / 3`. The noise is measured as the effort's is ([`white_noise`]).
 fn velocity_cutoff(segments: &[&JointTrajectory], dt: f64) -> Option<f64> {
     let fs = 1.0 / dt;
     let hi = (CUTOFF_SHARE * fs).min(CUTOFF_RANGE.1);
@@ -215,14 +215,7 @@ fn velocity_cutoff(segments: &[&JointTrajectory], dt: f64) -> Option<f64> {
     let accs = acceleration_spread(segments, dt, (CUTOFF_RANGE.0 * 2.5).min(hi));
     let mut best = f64::INFINITY;
     for (j, &acc) in accs.iter().enumerate().take(n) {
-        let mut d2: Vec<f64> = segments
-            .iter()
-            .flat_map(|s| {
-                (2..s.len()).map(move |i| (s.qd[i * n + j] - 2.0 * s.qd[(i - 1) * n + j] + s.qd[(i - 2) * n + j]).abs())
-            })
-            .collect();
-        let Some(median) = dynforge_recording::samples::median(&mut d2) else { continue };
-        let sigma = median / (0.6745 * 6f64.sqrt());
+        let Some(sigma) = white_noise(segments.iter().map(|s| (s.qd.as_slice(), s.len())), n, j) else { continue };
         if sigma <= 0.0 || acc <= 0.0 {
             continue;
         }
@@ -413,24 +406,33 @@ pub fn effort_noise(segments: &[&JointTrajectory]) -> Vec<(f64, f64)> {
     let n = segments.first().map_or(0, |s| s.joints());
     (0..n)
         .map(|j| {
-            let (mut d2, mut sum, mut sum2, mut count) = (Vec::new(), 0.0, 0.0, 0usize);
+            let Some(sigma) = white_noise(segments.iter().map(|s| (s.tau.as_slice(), s.len())), n, j) else {
+                return (0.0, 0.0);
+            };
+            let (mut sum, mut sum2, mut count) = (0.0, 0.0, 0usize);
             for s in segments {
-                let tau = |i: usize| s.tau[i * n + j];
                 for i in 0..s.len() {
-                    sum += tau(i);
-                    sum2 += tau(i) * tau(i);
+                    let tau = s.tau[i * n + j];
+                    sum += tau;
+                    sum2 += tau * tau;
                     count += 1;
-                    if i >= 2 {
-                        d2.push((tau(i) - 2.0 * tau(i - 1) + tau(i - 2)).abs());
-                    }
                 }
             }
-            let Some(median) = dynforge_recording::samples::median(&mut d2) else { return (0.0, 0.0) };
-            let sigma = median / (0.6745 * 6f64.sqrt());
             let c = count as f64;
             (sigma, (sum2 / c - (sum / c).powi(2)).max(0.0).sqrt())
         })
         .collect()
+}
+
+/// The white noise of joint `j` of a signal (each segment's `[sample][joint]` values, `n` joints, and its length):
+/// the median absolute second difference over `0.6745 sqrt(6)`, white noise's standard deviation (a smooth signal's
+/// second difference is `O(dt^2)` of its spread); `None` without three samples in a segment.
+fn white_noise<'a>(signals: impl Iterator<Item = (&'a [f64], usize)>, n: usize, j: usize) -> Option<f64> {
+    let mut d2 = Vec::new();
+    for (x, len) in signals {
+        d2.extend((2..len).map(|i| (x[i * n + j] - 2.0 * x[(i - 1) * n + j] + x[(i - 2) * n + j]).abs()));
+    }
+    dynforge_recording::samples::median(&mut d2).map(|m| m / (0.6745 * 6f64.sqrt()))
 }
 
 /// The factor by which conditioning scales white effort noise (its standard deviation): the pairing's average of
