@@ -5,7 +5,9 @@
 #
 # Identifies the four unloaded excitation logs that the repository's main.m names (trimmed to its index ranges), holds
 # out the point-to-point motion (rows 700-4200), and prints identify's tables, its held-out torque NRMSE beside the URDF
-# as given, and its link masses beside UR's published ones.
+# as given and least squares, its link masses beside UR's published ones, an independent least-squares reference
+# (bench/ur10e_least_squares.py: Pinocchio, its own filtering), and whether the 50 s log's identification and the other
+# three's agree within their spreads.
 #
 # Usage: bench/ur10e.sh CHECKOUT [OUT=bench/out/ur10e] [identify flags...]
 set -euo pipefail
@@ -43,12 +45,44 @@ logs=("$out"/ur-20_02_10-30sec_12harm.csv "$out"/ur-20_02_12-40sec_12harm.csv "$
   "$out"/ur-20_02_12-50sec_12harm.csv)
 "$bin/dynforge" info "${logs[0]}" --columns "$out/ur10e.columns.toml"
 "$bin/dynforge" identify "${logs[@]}" --urdf "$repo/URe/urdf/ur10e.urdf" --columns "$out/ur10e.columns.toml" \
-  --holdout "$out/ur-20_01_17-ptp_10_points.csv" --out "$out/ur10e.calibrated.urdf" "$@" | tee "$out/identify.txt"
+  --holdout "$out/ur-20_01_17-ptp_10_points.csv" --out "$out/ur10e.calibrated.urdf" --mjcf "$out/ur10e.calibrated.xml" \
+  "$@" | tee "$out/identify.txt"
 echo
 echo "UR's published masses [kg]: shoulder 7.369, upper arm 13.051, forearm 3.989, wrist 1 2.1, wrist 2 1.98, wrist 3 0.615"
+py=$(scripts/venv.sh)
+echo
+echo "independent least squares (Pinocchio regressor, rotor inertia, Coulomb, viscous, offset; its own filtering):"
+"$py" bench/ur10e_least_squares.py "$repo"
+
+# The 50 s log against the other three: do two identifications of one arm agree within their printed spreads?
+one() { "$bin/dynforge" identify "$@" --urdf "$repo/URe/urdf/ur10e.urdf" --columns "$out/ur10e.columns.toml" --json; }
+one "${logs[3]}" --out "$out/50s.urdf" > "$out/50s.json"
+one "${logs[@]:0:3}" --out "$out/three.urdf" > "$out/three.json"
+"$py" - "$out/50s.json" "$out/three.json" <<'EOF'
+import json, math, sys
+def estimates(path):
+    r = json.load(open(path))
+    out = {}
+    for link in r["links"]:
+        out[link["name"] + ".mass"] = link["mass"]
+        out.update({f"{link['name']}.com_{k}": e for k, e in zip("xyz", link["com"])})
+        out.update({f"{link['name']}.{k}": e for k, e in zip(["ixx", "ixy", "ixz", "iyy", "iyz", "izz"], link["inertia"])})
+    for joint in r["joints"]:
+        out.update({f"{joint['name']}.{k}": joint[k] for k in ["coulomb", "viscous", "armature", "offset"]})
+    return out
+a, b = estimates(sys.argv[1]), estimates(sys.argv[2])
+apart = []
+for name, x in a.items():
+    y = b[name]
+    d = math.log(x["value"] / y["value"]) if x["scale"] == "log" else x["value"] - y["value"]
+    z = d / math.hypot(x["std"], y["std"])
+    if abs(z) > 2:
+        apart.append(f"{name} ({z:+.1f})")
+print(f"50 s log against the other three: {len(a) - len(apart)} of {len(a)} parameters within two standard deviations "
+      f"(of their difference); apart: {', '.join(apart) or 'none'}")
+EOF
 
 # The same logs as ROS 2 bags, MCAP (mcap_ros2's writer) and Humble's sqlite3 (rosbags): the same URDF and JSON.
-py=$(scripts/venv.sh)
 columns='"shoulder_pan_joint": [2, 8, 14], "shoulder_lift_joint": [3, 9, 15], "elbow_joint": [4, 10, 16],
   "wrist_1_joint": [5, 11, 17], "wrist_2_joint": [6, 12, 18], "wrist_3_joint": [7, 13, 19]'
 gain_map=$(for k in 0 1 2 3 4 5; do printf '"%s": %s,' "${joints[$k]}" "${gains[$k]}"; done)

@@ -74,11 +74,14 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         spread: args.spread,
         conditioning: args.signals.conditioning(),
         reading: args.signals.reading(&fixed)?,
+        // The family is made for the robot as --fix names it: a joint welded here and not there is two robots.
+        weld_idle: false,
     };
 
     // The files first, then the bag: what cannot be used is refused before minutes of simulation. The URDF written
     // lands in none of the inputs, the excitations and the families' cache included.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
+    args.output.check_mjcf(&args.logs, document, &out)?;
     dynforge_recording::check_not_an_input(&out, std::slice::from_ref(&args.excitation))?;
     let cache = cache_dir(args.cache.as_deref())?;
     // The cache may not exist yet: inside it is inside it all the same.
@@ -130,6 +133,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let spreads = family_spreads(&dir, document, &degradation, &variants)?;
     let mut calibrated = write_calibrated(id, &read, document, &options, &args.output.holdout, &out)?;
     spreads.apply(&mut calibrated.id)?;
+    args.output.write_mjcf(&mut calibrated)?;
     match args.output.json {
         true => {
             let mut v = calibrated.json()?;

@@ -1,10 +1,10 @@
 //! `dynforge identify`: calibrates a robot's URDF to its logs by physics alone (no trained network).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use dynforge_identify::calibrate::{Options, calibrate_to_urdf};
+use dynforge_identify::calibrate::{Calibrated, Options, calibrate_to_urdf, check_output};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::flags::positive;
 use dynforge_proto::spread::Spread;
@@ -45,6 +45,11 @@ pub struct Output {
     /// Where to write the calibrated URDF (default: the first log with extension .calibrated.urdf).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Also write the calibrated robot as a MuJoCo model (MJCF): its bodies, friction (frictionloss, damping) and
+    /// each joint's rotor inertia (armature), which a URDF cannot hold; the joints' torque offsets as its numeric
+    /// `offset`.
+    #[arg(long, value_name = "FILE.xml")]
+    mjcf: Option<PathBuf>,
     /// Print the result as JSON instead of tables.
     #[arg(long)]
     pub json: bool,
@@ -54,6 +59,23 @@ impl Output {
     /// The calibrated URDF's path: `--out`, else the first log's with extension .calibrated.urdf.
     pub fn path(&self, logs: &[PathBuf]) -> PathBuf {
         self.out.clone().unwrap_or_else(|| logs[0].with_extension("calibrated.urdf"))
+    }
+
+    /// An error if the MuJoCo model asked for would land on an input or on the URDF written (`out`).
+    pub fn check_mjcf(&self, logs: &[PathBuf], document: Option<(&str, &str)>, out: &Path) -> Result<()> {
+        let Some(mjcf) = &self.mjcf else { return Ok(()) };
+        check_output(logs, document, &self.holdout, mjcf)?;
+        dynforge_recording::check_not_an_input(mjcf, &[out.to_path_buf()])
+            .context("--mjcf and the calibrated URDF (--out) name the same file")?;
+        Ok(())
+    }
+
+    /// Writes the MuJoCo model, if asked.
+    pub fn write_mjcf(&self, calibrated: &mut Calibrated) -> Result<()> {
+        if let Some(mjcf) = &self.mjcf {
+            calibrated.write_mjcf(mjcf)?;
+        }
+        Ok(())
     }
 }
 
@@ -139,8 +161,11 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         spread: args.spread,
         conditioning: args.signals.conditioning(),
         reading: args.signals.reading(&args.fix)?,
+        weld_idle: true,
     };
-    let calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;
+    args.output.check_mjcf(&args.logs, document, &out)?;
+    let mut calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;
+    args.output.write_mjcf(&mut calibrated)?;
     match args.output.json {
         true => println!("{}", serde_json::to_string_pretty(&calibrated.json()?)?),
         false => print!("{calibrated}"),

@@ -84,6 +84,7 @@ fn arm_coverage(
             spread,
             conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
             reading: Reading::welding(&fixed),
+            weld_idle: true,
         };
         let mut zs = Zs::new();
         let mut failed = 0;
@@ -220,6 +221,7 @@ fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) ->
         spread: family.spread,
         conditioning: Conditioning { effort: Some(EffortConvention::Held), velocity, ..Conditioning::default() },
         reading: Reading::welding(fixed),
+        weld_idle: true,
     };
     let shards = shards_by_robot(dir)?;
     for (case, first_only) in [("first log", true), ("all logs", false)] {

@@ -8,18 +8,19 @@
 //! Gauss-Newton model `pi(x + dx) ~ pi(x) + J dx`, continued from the prior's weight to the data's whole ([`solve`]).
 //! The posterior covariance of the coordinates is the inverse of the Gauss-Newton Hessian at the optimum (Laplace).
 
-use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI, num_params};
+use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_proto::spread::Spread;
 use dynforge_robot::Model;
 use dynforge_robot::parameters::dynamic_parameters;
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
+use crate::drive::{self, DRIVE_PER_JOINT as ND, identified_len};
 use crate::normal::NormalEquations;
 use crate::standard::{self, ALPHA, COORDINATES, D, S, T};
 
 /// A Gaussian prior over the coordinates `x` (per link its log-Cholesky coordinates, then per joint Coulomb and
-/// viscous friction). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (the
+/// viscous friction, then per joint its drive's armature and offset: `crate::drive`). Independent in each link's mass, the scale of its inertia tensor and the tensor's shape (the
 /// coordinates `independent` maps a link's log mass and log radii to) and in every other coordinate: a URDF's mass,
 /// inertia and centre of mass come from different sources (a scale, a CAD model's geometry, a guess) and are off
 /// independently, while the geometry that gives the tensor's shape is what a URDF gets best.
@@ -64,7 +65,8 @@ impl CoordinatePrior {
     /// inertia's spread), the tensor's shape within [`SHAPE`] of its scale, the off-diagonal shape within half the
     /// inertia's spread of the link's radius of gyration, the centre of mass within the COM's spread of its distance
     /// from the link's origin (at least 1 cm) in every direction, friction within its spread of its value or
-    /// [`FRICTION_FLOOR`].
+    /// [`FRICTION_FLOOR`], the drives' terms about none, within spreads sized from the joint's effort limit
+    /// (`crate::drive::prior`).
     pub fn of(model: &Model, spread: Spread) -> Result<Self, IdentifyError> {
         let n = model.dof();
         let pi = dynamic_parameters(model);
@@ -95,6 +97,9 @@ impl CoordinatePrior {
             mean[at + 1] = joint.friction.viscous;
             std[at] = (spread.friction * joint.friction.coulomb).max(FRICTION_FLOOR * effort);
             std[at + 1] = (spread.friction * joint.friction.viscous).max(FRICTION_FLOOR * effort / speed);
+            let (d, d_std) = drive::prior(model, j);
+            let at = drive_coordinate(n, j, 0);
+            (mean[at], mean[at + 1], std[at], std[at + 1]) = (d.armature, d.offset, d_std.armature, d_std.offset);
         }
         Ok(CoordinatePrior { mean, std, links: n })
     }
@@ -174,14 +179,27 @@ impl CoordinatePrior {
     }
 }
 
+/// Coordinates per joint (its link's, its friction's, its drive's).
+const PER_JOINT: usize = COORDINATES + NF + ND;
+
 /// Length of the coordinate vector of an `n`-joint robot.
 pub fn coordinates(n: usize) -> usize {
-    n * (COORDINATES + NF)
+    n * PER_JOINT
 }
 
-/// The dynamic parameters (`dynforge_proto::params` layout) at coordinates `x`.
+/// The joints of a coordinate vector of `len`.
+fn joints_of(len: usize) -> usize {
+    len / PER_JOINT
+}
+
+/// The coordinates that are not negative: friction and armature (an offset has either sign).
+fn non_negative(n: usize) -> impl Iterator<Item = usize> {
+    (COORDINATES * n..COORDINATES * n + NF * n).chain((0..n).map(move |j| drive_coordinate(n, j, 0)))
+}
+
+/// The identified parameters (`dynforge_proto::params` layout, then the drives': `crate::drive`) at coordinates `x`.
 pub fn parameters(n: usize, x: &DVector<f64>) -> Vec<f64> {
-    let mut pi = vec![0.0; num_params(n)];
+    let mut pi = vec![0.0; identified_len(n)];
     for l in 0..n {
         let p = standard::params(&x.as_slice()[COORDINATES * l..COORDINATES * (l + 1)]);
         pi[NI * l..NI * (l + 1)].copy_from_slice(&p);
@@ -190,9 +208,9 @@ pub fn parameters(n: usize, x: &DVector<f64>) -> Vec<f64> {
     pi
 }
 
-/// `d pi / d x`: block diagonal, the links' log-Cholesky Jacobians then the identity of friction.
+/// `d pi / d x`: block diagonal, the links' log-Cholesky Jacobians then the identity of friction and drives.
 pub fn jacobian(n: usize, x: &DVector<f64>) -> DMatrix<f64> {
-    let mut jac = DMatrix::zeros(num_params(n), coordinates(n));
+    let mut jac = DMatrix::zeros(identified_len(n), coordinates(n));
     for l in 0..n {
         let block = standard::jacobian(&x.as_slice()[COORDINATES * l..COORDINATES * (l + 1)]);
         for (k, column) in block.iter().enumerate() {
@@ -201,7 +219,7 @@ pub fn jacobian(n: usize, x: &DVector<f64>) -> DMatrix<f64> {
             }
         }
     }
-    for k in 0..NF * n {
+    for k in 0..(NF + ND) * n {
         jac[(NI * n + k, COORDINATES * n + k)] = 1.0;
     }
     jac
@@ -216,7 +234,7 @@ struct Data {
 
 impl Data {
     fn new(ne: &NormalEquations, weights: &[f64]) -> Self {
-        let p = num_params(ne.dof());
+        let p = ne.columns();
         let (mut g, mut rhs, mut c) = (DMatrix::zeros(p, p), DVector::zeros(p), 0.0);
         for (j, w) in weights.iter().enumerate() {
             let (a, b, cj, _) = ne.joint(j);
@@ -289,7 +307,7 @@ fn follow(
     start: &DVector<f64>,
     (stages, last): (f64, f64),
 ) -> Result<Solution, IdentifyError> {
-    let at_start = data.cost(&DVector::from_vec(parameters(start.len() / (COORDINATES + NF), start)));
+    let at_start = data.cost(&DVector::from_vec(parameters(joints_of(start.len()), start)));
     // A start the data cannot even score (overflowed) is searched at full weight.
     let mut share = if at_start.is_finite() { start.len() as f64 / at_start } else { 1.0 };
     let (mut x, mut iterations) = (start.clone(), 0);
@@ -309,7 +327,7 @@ fn search(
     start: &DVector<f64>,
     tolerance: f64,
 ) -> Result<Solution, IdentifyError> {
-    let n = start.len() / (COORDINATES + NF);
+    let n = joints_of(start.len());
     let precision = prior.precision();
     let scale = prior.marginal_std();
     let objective = |x: &DVector<f64>| posterior_cost(data, prior, x, &DVector::from_vec(parameters(n, x)));
@@ -321,13 +339,22 @@ fn search(
         iterations += 1;
         let pi = DVector::from_vec(parameters(n, &x));
         let jac = jacobian(n, &x);
-        let grad = jac.transpose() * (&data.g * &pi - &data.rhs) + &precision * (&x - &prior.mean);
-        let hessian = jac.transpose() * &data.g * &jac + &precision;
+        let mut grad = jac.transpose() * (&data.g * &pi - &data.rhs) + &precision * (&x - &prior.mean);
+        let mut hessian = jac.transpose() * &data.g * &jac + &precision;
+        // A coordinate at its bound that the objective pushes past it is held there (an active set): stepped and
+        // then clamped, it would shorten every step of the others and the search would crawl (an arm without rotor
+        // inertia, identified with it, ends with its armature at zero).
+        let held: Vec<usize> = non_negative(n).filter(|&k| x[k] <= 0.0 && grad[k] > 0.0).collect();
+        for k in held {
+            grad[k] = 0.0;
+            hessian.row_mut(k).fill(0.0);
+            hessian.column_mut(k).fill(0.0);
+            hessian[(k, k)] = 1.0;
+        }
         let scaled = Scaled::new(&hessian);
         loop {
             let mut next = &x - scaled.solve(&grad, lambda)?;
-            // Friction is not negative.
-            for k in COORDINATES * n..next.len() {
+            for k in non_negative(n) {
                 next[k] = next[k].max(0.0);
             }
             let f_next = objective(&next);
@@ -400,8 +427,8 @@ pub fn optima(
         .map(|k| {
             let mut rng = dynforge_robot::rng::Rng::stream(START_SEED, &[k]);
             let mut mean = prior.colour(&DVector::from_fn(prior.mean.len(), |_, _| rng.normal()));
-            for v in mean.rows_mut(COORDINATES * links, NF * links).iter_mut() {
-                *v = v.max(0.0);
+            for k in non_negative(links) {
+                mean[k] = mean[k].max(0.0);
             }
             CoordinatePrior { mean, ..prior.clone() }
         })
@@ -480,7 +507,7 @@ impl Objective<'_> {
             let theta = standard::coordinates(&pi[NI * l..NI * (l + 1)])?;
             x.rows_mut(COORDINATES * l, COORDINATES).copy_from_slice(&theta);
         }
-        x.rows_mut(COORDINATES * n, NF * n).copy_from_slice(&pi[NI * n..]);
+        x.rows_mut(COORDINATES * n, (NF + ND) * n).copy_from_slice(&pi[NI * n..]);
         Some(posterior_cost(&self.data, self.prior, &x, &DVector::from_column_slice(pi)))
     }
 }
@@ -553,6 +580,11 @@ pub fn link_coordinate(l: usize, k: usize) -> usize {
 
 pub fn friction_coordinate(n: usize, j: usize, which: usize) -> usize {
     COORDINATES * n + NF * j + which
+}
+
+/// The index in `x` of joint `j`'s drive term `which` (0 armature, 1 offset).
+pub fn drive_coordinate(n: usize, j: usize, which: usize) -> usize {
+    (COORDINATES + NF) * n + ND * j + which
 }
 
 /// Indices of the centre-of-mass coordinates of link `l` (they are the COM itself).

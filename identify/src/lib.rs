@@ -12,13 +12,15 @@
 //!
 //! - [`calibrate`] calibrates a robot description (URDF) to logs without a network: the physically consistent
 //!   parameters of every link and joint (`consistent`, over the log-Cholesky coordinates of `standard`), the URDF as
-//!   prior, from logs conditioned as real drivers write them (`signals`, `rows`).
+//!   prior, from logs conditioned as real drivers write them (`signals`, `rows`), with each joint's drive terms that
+//!   a URDF cannot state (`drive`: rotor inertia, a torque offset).
 //!
 //! The same normal equations score any parameter set's torque prediction on a recording ([`NormalEquations::nrmse`])
 //! without re-running the dynamics per parameter set.
 
 pub mod calibrate;
 pub mod consistent;
+pub mod drive;
 mod labels;
 mod latent;
 mod normal;

@@ -5,6 +5,7 @@ use dynforge_robot::{Data, Model};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
+use crate::drive::{DRIVE_PER_JOINT, drive_index, identified_len};
 use dynforge_recording::JointTrajectory;
 
 use crate::samples::{REST_SPEED, for_each, row_support};
@@ -18,6 +19,8 @@ use crate::samples::{REST_SPEED, for_each, row_support};
 #[derive(Debug, Clone)]
 pub struct NormalEquations {
     pub(crate) dof: usize,
+    /// Columns of the regressor: the robot's parameters, and the drives' when identified with them.
+    pub(crate) p: usize,
     pub(crate) a: Vec<DMatrix<f64>>,
     pub(crate) b: Vec<DVector<f64>>,
     pub(crate) c: Vec<f64>,
@@ -26,11 +29,20 @@ pub struct NormalEquations {
 }
 
 impl NormalEquations {
-    /// Empty sums for a `dof`-joint robot.
+    /// Empty sums for a `dof`-joint robot's parameters (`dynforge_proto::params`).
     pub fn new(dof: usize) -> Self {
-        let p = num_params(dof);
+        Self::with_columns(dof, num_params(dof))
+    }
+
+    /// Empty sums for a `dof`-joint robot's parameters and its drives' ([`crate::drive`]).
+    pub fn with_drives(dof: usize) -> Self {
+        Self::with_columns(dof, identified_len(dof))
+    }
+
+    fn with_columns(dof: usize, p: usize) -> Self {
         NormalEquations {
             dof,
+            p,
             a: vec![DMatrix::zeros(p, p); dof],
             b: vec![DVector::zeros(p); dof],
             c: vec![0.0; dof],
@@ -57,7 +69,7 @@ impl NormalEquations {
             return Err(IdentifyError::Dof(traj.joints().min(model.dof()), n));
         }
         let mut data = Data::new(model);
-        let mut rows = BlockedRows::new(n, 1);
+        let mut rows = BlockedRows::new(n, 1, false);
         for_each(model, &mut data, traj, range, |_, y, qd, tau| {
             for j in (0..n).filter(|&j| qd[j].abs() >= REST_SPEED) {
                 rows.push(j, y, &tau[j..=j]);
@@ -89,6 +101,17 @@ impl NormalEquations {
         self.dof
     }
 
+    /// Columns of the regressor summed: [`num_params`], or [`identified_len`] with the drives.
+    pub fn columns(&self) -> usize {
+        self.p
+    }
+
+    /// `pi` as a vector of every column: a robot's parameters alone (a URDF's) have no drive terms.
+    pub(crate) fn padded(&self, pi: &[f64]) -> DVector<f64> {
+        assert!(pi.len() <= self.p, "{} parameters for {} columns", pi.len(), self.p);
+        DVector::from_fn(self.p, |k, _| pi.get(k).copied().unwrap_or(0.0))
+    }
+
     /// Torque rows (moving joint samples) summed.
     pub fn rows(&self) -> usize {
         self.n.iter().sum()
@@ -96,7 +119,7 @@ impl NormalEquations {
 
     /// `(Y^T Y, Y^T tau, tau^T tau)` over all joints.
     pub fn gram(&self) -> (DMatrix<f64>, DVector<f64>, f64) {
-        let p = num_params(self.dof);
+        let p = self.p;
         let mut a = DMatrix::zeros(p, p);
         let mut b = DVector::zeros(p);
         for j in 0..self.dof {
@@ -117,9 +140,10 @@ impl NormalEquations {
         (quad - 2.0 * self.b[j].dot(pi) + self.c[j]).max(0.0)
     }
 
-    /// Residual sum of squares of the torques predicted by `pi` (layout of `dynforge_proto::params`).
+    /// Residual sum of squares of the torques predicted by `pi` (layout of `dynforge_proto::params`, then the
+    /// drives' if these sums have them).
     pub fn rss(&self, pi: &[f64]) -> f64 {
-        let pi = DVector::from_column_slice(pi);
+        let pi = self.padded(pi);
         (0..self.dof).map(|j| self.rss_joint(j, &pi)).sum()
     }
 
@@ -137,12 +161,22 @@ impl NormalEquations {
         e.add(self, pi);
         e.overall()
     }
+
+    /// RMS torque error of `pi` over the RMS spread of the recorded torque, both over every joint's rows together:
+    /// the joints that carry the large torques weigh most (where [`Self::mean_nrmse`] weighs a wrist's small
+    /// torque as much as a shoulder's).
+    pub fn pooled_nrmse(&self, pi: &[f64]) -> f64 {
+        let mut e = TorqueError::default();
+        e.add(self, pi);
+        e.pooled()
+    }
 }
 
 /// Rows of the regressor gathered per joint in blocks of [`BLOCK`], so that a block's Gram matrix is one matrix
 /// product (a vectorised kernel) rather than a rank-one update per row; `k` right-hand sides (the effort
 /// conventions) share the rows. Each joint's row is non-zero only on its `support` (links `j..` and its friction),
-/// so the blocks are that narrow and are scattered into the full normal equations at the end.
+/// so the blocks are that narrow and are scattered into the full normal equations at the end. With `drives`, the rows
+/// have the drives' columns too (joint `j`'s row only joint `j`'s).
 pub(crate) struct BlockedRows {
     support: Vec<Vec<usize>>,
     rows: Vec<faer::Mat<f64>>,
@@ -157,8 +191,13 @@ pub(crate) struct BlockedRows {
 const BLOCK: usize = 64;
 
 impl BlockedRows {
-    pub(crate) fn new(dof: usize, k: usize) -> Self {
-        let support = row_support(dof);
+    pub(crate) fn new(dof: usize, k: usize, drives: bool) -> Self {
+        let mut support = row_support(dof);
+        if drives {
+            for (j, columns) in support.iter_mut().enumerate() {
+                columns.extend(drive_index(dof, j)..drive_index(dof, j) + DRIVE_PER_JOINT);
+            }
+        }
         let s = |j: usize| support[j].len();
         BlockedRows {
             rows: (0..dof).map(|j| faer::Mat::zeros(BLOCK, s(j))).collect(),
@@ -166,7 +205,13 @@ impl BlockedRows {
             filled: vec![0; dof],
             gram: (0..dof).map(|j| faer::Mat::zeros(s(j), s(j))).collect(),
             cross: (0..dof).map(|j| faer::Mat::zeros(s(j), k)).collect(),
-            equations: vec![NormalEquations::new(dof); k],
+            equations: vec![
+                match drives {
+                    true => NormalEquations::with_drives(dof),
+                    false => NormalEquations::new(dof),
+                };
+                k
+            ],
             support,
         }
     }
@@ -253,7 +298,7 @@ impl TorqueError {
                 n: vec![0; ne.dof],
             };
         }
-        let pi = DVector::from_column_slice(pi);
+        let pi = ne.padded(pi);
         for j in 0..ne.dof {
             self.rss[j] += ne.rss_joint(j, &pi);
             self.c[j] += ne.c[j];
@@ -271,6 +316,16 @@ impl TorqueError {
                 (self.rss[j] / n).sqrt() / var.max(0.0).sqrt()
             })
             .collect()
+    }
+
+    /// Squared error over the torque's spread, summed over the joints that moved: [`NormalEquations::pooled_nrmse`].
+    pub fn pooled(&self) -> f64 {
+        let (mut rss, mut spread) = (0.0, 0.0);
+        for j in (0..self.rss.len()).filter(|&j| self.n[j] > 0) {
+            rss += self.rss[j];
+            spread += (self.c[j] - self.sum[j] * self.sum[j] / self.n[j] as f64).max(0.0);
+        }
+        (rss / spread).sqrt()
     }
 
     /// Mean NRMSE over the joints that moved.

@@ -7,6 +7,7 @@ use dynforge_robot::{Data, Model, regressor, rnea};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
+use crate::drive::{Drive, drive_index, identified_len};
 use crate::normal::{BlockedRows, NormalEquations};
 use crate::samples::{REST_SPEED, STOPPED_SPEED};
 use crate::signals::{Conditioned, EffortConvention};
@@ -37,7 +38,8 @@ fn usable(c: &Conditioned, range: std::ops::Range<usize>) -> impl Iterator<Item 
 }
 
 /// Calls `f(i, y)` with the regressor `y` of every usable sample `i` of `c` in `range` (every `step`-th from its
-/// start), with the viscous column paired with the span's mean velocity and the Coulomb column `c.coulomb`.
+/// start), with the viscous column paired with the span's mean velocity and the Coulomb column `c.coulomb`, and the
+/// drives' columns (`crate::drive`: the joint's acceleration and one).
 pub(crate) fn for_each_row(
     model: &Model,
     c: &Conditioned,
@@ -47,15 +49,19 @@ pub(crate) fn for_each_row(
 ) {
     let n = c.joints;
     let mut data = Data::new(model);
+    let mut y = DMatrix::zeros(n, identified_len(n));
     let start = range.start;
     for i in usable(c, range).filter(|i| (i - start).is_multiple_of(step)) {
         let row = i * n..(i + 1) * n;
         regressor(model, &mut data, &c.q[row.clone()], &c.qd[row.clone()], &c.qdd[row]);
+        y.columns_mut(0, data.regressor.ncols()).copy_from(&data.regressor);
         for j in 0..n {
-            data.regressor[(j, NI * n + NF * j)] = c.coulomb[i * n + j];
-            data.regressor[(j, NI * n + NF * j + 1)] = c.v[i * n + j];
+            y[(j, NI * n + NF * j)] = c.coulomb[i * n + j];
+            y[(j, NI * n + NF * j + 1)] = c.v[i * n + j];
+            y[(j, drive_index(n, j))] = c.qdd[i * n + j];
+            y[(j, drive_index(n, j) + 1)] = 1.0;
         }
-        f(i, &data.regressor);
+        f(i, &y);
     }
 }
 
@@ -90,7 +96,7 @@ fn thinned(range: std::ops::Range<usize>, step: usize, origin: usize) -> (std::o
 
 impl RowSums {
     pub fn new(dof: usize) -> Self {
-        RowSums { by_convention: [NormalEquations::new(dof), NormalEquations::new(dof)] }
+        RowSums { by_convention: [NormalEquations::with_drives(dof), NormalEquations::with_drives(dof)] }
     }
 
     /// Adds the moving rows of `c` in `range` (joint rows slower than [`REST_SPEED`] left out) at the samples whose
@@ -108,7 +114,7 @@ impl RowSums {
             return Err(IdentifyError::Dof(c.joints, n));
         }
         let moving = moving_rows(c);
-        let mut rows = BlockedRows::new(n, 2);
+        let mut rows = BlockedRows::new(n, 2, true);
         let (rows_range, step) = thinned(range, step, origin);
         for_each_row(model, c, rows_range, step, |i, y| {
             for j in (0..n).filter(|&j| moving[i * n + j]) {
@@ -172,11 +178,11 @@ pub(crate) fn scores(
     (out, rows)
 }
 
-/// Each joint's torque residuals of the robot `calibrated` (its inertials by inverse dynamics, its friction on the
-/// conditioned Coulomb and viscous columns) on the usable rows of `c` in `range` (a row at rest is `None`), in sample
-/// order: what their autocorrelation is measured on.
+/// Each joint's torque residuals of the robot `calibrated` with its drives `drives` (its inertials by inverse
+/// dynamics, its friction on the conditioned Coulomb and viscous columns) on the usable rows of `c` in `range` (a row
+/// at rest is `None`), in sample order: what their autocorrelation is measured on.
 pub fn residuals(
-    calibrated: &Model,
+    (calibrated, drives): (&Model, &[Drive]),
     c: &Conditioned,
     range: std::ops::Range<usize>,
     convention: EffortConvention,
@@ -191,7 +197,8 @@ pub fn residuals(
         for (j, joint) in calibrated.joints().iter().enumerate() {
             let k = i * n + j;
             let friction = joint.friction.coulomb * c.coulomb[k] + joint.friction.viscous * c.v[k];
-            out[j].push(moving[k].then(|| c.tau[convention as usize][k] - tau[j] - friction));
+            let drive = drives[j].armature * c.qdd[k] + drives[j].offset;
+            out[j].push(moving[k].then(|| c.tau[convention as usize][k] - tau[j] - friction - drive));
         }
     }
     out

@@ -23,6 +23,7 @@ pub mod dynamics;
 pub mod generator;
 pub mod jacobian;
 pub mod kinematics;
+pub mod mjcf;
 pub mod model;
 pub mod parameters;
 pub mod rng;

@@ -98,7 +98,22 @@ impl Harness {
 
     /// A log of `seconds` of reference motion `seed`, its effort `held` or `sampled`, at `rate` Hz; its path.
     pub fn log(&self, arm: &Arm, seed: u64, seconds: f64, effort: &str, kind: LogKind, rate: f64) -> PathBuf {
-        let out = self.dir.join(format!("{}-{seed}-{effort}-{kind:?}-{rate}-{seconds}.mcap", arm.name));
+        self.log_with_drives(arm, &[], (seed, seconds), effort, kind, rate)
+    }
+
+    /// [`Harness::log`] of the arm with drives: per joint `(name, armature, offset)`, the rotor inertia MuJoCo
+    /// simulates (`dof_armature`) and a constant torque added to the logged effort.
+    pub fn log_with_drives(
+        &self,
+        arm: &Arm,
+        drives: &[(&str, f64, f64)],
+        (seed, seconds): (u64, f64),
+        effort: &str,
+        kind: LogKind,
+        rate: f64,
+    ) -> PathBuf {
+        let tag = if drives.is_empty() { "" } else { "-drives" };
+        let out = self.dir.join(format!("{}-{seed}-{effort}-{kind:?}-{rate}-{seconds}{tag}.mcap", arm.name));
         let mut req = json!({
             "urdf": self.urdf, "friction": arm.friction_json(), "seed": seed, "duration": seconds, "rate": rate,
             "effort": effort, "out": out,
@@ -107,6 +122,13 @@ impl Harness {
             req["noise"] = json!(0.01);
             req["counts"] = json!(131072);
             req["velocity"] = json!("encoder");
+        }
+        if !drives.is_empty() {
+            let map = |f: fn(&(&str, f64, f64)) -> f64| -> Value {
+                Value::Object(drives.iter().map(|d| (d.0.to_string(), json!(f(d)))).collect())
+            };
+            req["armature"] = map(|d| d.1);
+            req["offset"] = map(|d| d.2);
         }
         self.run(&[], &req);
         out

@@ -8,6 +8,8 @@ stdin (JSON):
   urdf            path of the URDF simulated (its text is also the bag's /robot_description unless "description")
   description     optional: the text written as /robot_description instead
   friction        {joint: [coulomb, viscous]} for the joints that move (the others are held still)
+  armature        optional: {joint: rotor inertia reflected through the gearbox} (MuJoCo's dof_armature; default 0)
+  offset          optional: {joint: constant torque} added to the logged effort (a torque sensor's bias)
   seed            of the reference motion (multi-sines), and of the noise
   excitation      optional: an `excitation-K.json` of `dynforge excite` (a Fourier series per joint) as the reference
                   of the joints it names instead of multi-sines; the duration is its period
@@ -124,7 +126,7 @@ def simulate(req):
     refs = {}
     for j, name in enumerate(joints):
         dof = m.jnt_dofadr[j]
-        m.dof_armature[dof] = 0.0
+        m.dof_armature[dof] = req.get("armature", {}).get(name, 0.0)
         coulomb, viscous = friction.get(name, [0.0, 0.0])
         m.dof_damping[dof] = viscous
         m.dof_frictionloss[dof] = coulomb
@@ -170,7 +172,8 @@ def simulate(req):
             # Held: the torque applied from now on. Sampled: the torque at this instant, which the simulation's
             # staircase (a step every sim_dt) has half way between the step before and the step after.
             at_instant = tau if effort == "held" or applied is None else 0.5 * (applied + tau)
-            log_tau.append(list(at_instant))
+            offset = req.get("offset", {})
+            log_tau.append([at_instant[vadr[j]] + offset.get(name, 0.0) for j, name in enumerate(joints)])
         if k == total_substeps:
             break
         d.qfrc_applied[:] = tau

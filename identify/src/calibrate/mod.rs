@@ -35,6 +35,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
 use crate::consistent::{self, CoordinatePrior};
+use crate::drive::{Drive, drive_index, drives};
 use crate::normal::NormalEquations;
 use crate::rows::{RowSums, residuals};
 use crate::signals::{
@@ -52,11 +53,20 @@ pub struct Options {
     /// How the logs are read: a table's columns, the drives' gains, joints welded at their mean logged position
     /// (e.g. a gripper's, still during the excitation).
     pub reading: Reading,
+    /// Whether joints that move too little in the logs ([`idle_joints`]) are welded at their mean logged position,
+    /// with a note, rather than refused: what a user's logs of an arm with a gripper held still want, and not what
+    /// a family made for the robot as named wants (`dynforge calibrate`).
+    pub weld_idle: bool,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { spread: Spread::uniform(0.5), conditioning: Conditioning::default(), reading: Reading::default() }
+        Options {
+            spread: Spread::uniform(0.5),
+            conditioning: Conditioning::default(),
+            reading: Reading::default(),
+            weld_idle: true,
+        }
     }
 }
 
@@ -121,7 +131,44 @@ pub fn identify_logs(
     if paths.is_empty() {
         return Err(CalibrateError::NoLogs);
     }
-    identify_read(read_logs(paths, document, &options.reading)?, options)
+    let logs = read_logs(paths, document, &options.reading)?;
+    let idle = idle_joints(&logs);
+    if !options.weld_idle || idle.is_empty() {
+        return identify_read(logs, options);
+    }
+    let mut reading = options.reading.clone();
+    reading.fixed.extend(idle.keys().cloned());
+    let mut welded = read_logs(paths, document, &reading)?;
+    let said: Vec<String> = idle.iter().map(|(name, moving)| format!("'{name}' ({moving})")).collect();
+    welded[0].notes.push(format!(
+        "joint(s) {} move too little in the logs (moving samples, under {MIN_ROWS}): welded at their mean logged \
+         position; record motion of them to identify them, or name them with --fix",
+        said.join(", ")
+    ));
+    identify_read(welded, options)
+}
+
+/// Joints that move in fewer than [`MIN_ROWS`] samples of `logs` (the central difference of their positions faster
+/// than [`crate::REST_SPEED`]), by name with that count: too little motion to identify their friction, and rows that
+/// would only add their noise.
+pub fn idle_joints(logs: &[Log]) -> std::collections::BTreeMap<String, usize> {
+    let Some(first) = logs.first() else { return Default::default() };
+    let n = first.model.dof();
+    (0..n)
+        .map(|j| {
+            let moving: usize = logs
+                .iter()
+                .flat_map(|log| log.segments.iter().map(move |s| (s, 2.0 * log.dt)))
+                .map(|(s, span)| {
+                    (1..s.len().saturating_sub(1))
+                        .filter(|&i| ((s.q[(i + 1) * n + j] - s.q[(i - 1) * n + j]) / span).abs() > crate::REST_SPEED)
+                        .count()
+                })
+                .sum();
+            (first.model.joints()[j].name.clone(), moving)
+        })
+        .filter(|(_, moving)| *moving < MIN_ROWS)
+        .collect()
 }
 
 /// [`identify_logs`] of logs already read (and perhaps changed: a family's variants degraded as a bag is).
@@ -240,12 +287,12 @@ pub const CONVENTION_MARGIN: f64 = 0.1;
 /// [`NOISE_SAMPLES`], else over [`NOISE_BLOCKS`] blocks spread evenly through them (a noise level and a correlation
 /// time are told as well by ten minutes of samples as by hours, at a fraction of the cost).
 fn residual_noise(
-    calibrated: &Model,
+    calibrated: (&Model, &[Drive]),
     logs: &[Log],
     velocity: &VelocityChoice,
     convention: EffortConvention,
 ) -> Vec<Correlation> {
-    let n = calibrated.dof();
+    let n = calibrated.0.dof();
     let pad = settling(velocity.source, velocity.cutoff, logs[0].dt);
     let blocks = noise_blocks(logs);
     let series: Vec<Vec<Vec<Option<f64>>>> = dynforge_proto::parallel::map_in_order(&blocks, |(seg, range)| {
@@ -360,8 +407,9 @@ fn fit(
     let mut solution = consistent::solve(ne, &weights, &prior, &prior.mean)?;
     let mut measured = vec![Correlation::default(); n];
     for _ in 0..2 {
-        let calibrated = model_with(model, &consistent::parameters(n, &solution.x))?;
-        measured = residual_noise(&calibrated, logs, velocity, convention);
+        let pi = consistent::parameters(n, &solution.x);
+        let calibrated = model_with(model, &pi)?;
+        measured = residual_noise((&calibrated, &drives(n, &pi)), logs, velocity, convention);
         weights = (0..n).map(|j| weight(j, measured[j].std.powi(2), measured[j].time_of_rows)).collect();
         solution = consistent::solve(ne, &weights, &prior, &solution.x)?;
     }
@@ -454,11 +502,12 @@ fn sandwich(
 /// Residual sum of squares of `pi` on joint `j` of `ne`.
 fn ne_joint_rss(ne: &NormalEquations, j: usize, pi: &[f64]) -> f64 {
     let (a, b, c, _) = ne.joint(j);
-    let p = DVector::from_column_slice(pi);
+    let p = ne.padded(pi);
     (p.dot(&(a * &p)) - 2.0 * b.dot(&p) + c).max(0.0)
 }
 
-/// `model` with the dynamic parameters `pi` (physical by construction: the consistent search's).
+/// `model` with the dynamic parameters `pi` (physical by construction: the consistent search's; drive terms after
+/// them, which a URDF cannot hold, are left out).
 pub(crate) fn model_with(model: &Model, pi: &[f64]) -> Result<Model, IdentifyError> {
     let n = model.dof();
     let inertials: Vec<Inertial> = (0..n)
@@ -494,8 +543,10 @@ pub const EFFORT_SCALE: (f64, f64) = (1.0 / 3.0, 3.0);
 /// every one (a flipped sign is not) and within [`EFFORT_SCALE`] on the median (currents, or another unit, are not:
 /// a unit scales every joint alike, where a missing rotor inertia scales a few). Judged on `ne` (the
 /// logs' normal equations) with the URDF's rigid-body parameters, each joint's effort regressed on its URDF torque,
-/// its Coulomb column and its viscous column together (the URDF's friction, usually none, is what is unknown most):
-/// the scale and the partial correlation are the URDF torque's, friction taken out of both sides (Frisch-Waugh).
+/// its Coulomb column, its viscous column and its offset's together (the URDF's friction, usually none, is what is
+/// unknown most, and a sensor's bias is not the URDF's to know): the scale and the partial correlation are the URDF
+/// torque's, those columns taken out of both sides (Frisch-Waugh). The rotor inertia is not taken out: it is part of
+/// the scale on a joint whose torque is mostly inertial, as the tolerance allows.
 fn check_effort_scale(ne: &NormalEquations, model: &Model) -> Result<(), CalibrateError> {
     let n = model.dof();
     let mut rigid = dynamic_parameters(model);
@@ -503,18 +554,19 @@ fn check_effort_scale(ne: &NormalEquations, model: &Model) -> Result<(), Calibra
         let at = friction_index(n, j);
         rigid[at..at + 2].fill(0.0);
     }
-    let pi = DVector::from_vec(rigid);
+    let pi = ne.padded(&rigid);
     let mut all = Vec::new();
     let (mut scales, mut suggested) = (Vec::new(), Vec::new());
     for (j, joint) in model.joints().iter().enumerate() {
         let (a, b, c, _) = ne.joint(j);
-        let at = friction_index(n, j);
-        // Gram entries of (effort, URDF torque) with friction's two columns, and the friction columns' own.
+        let nuisance = [friction_index(n, j), friction_index(n, j) + 1, drive_index(n, j) + 1];
+        // Gram entries of (effort, URDF torque) with the nuisance columns, and the nuisance columns' own.
         let api = a * &pi;
         let (uu, tu) = (pi.dot(&api), b.dot(&pi));
-        let ff = nalgebra::Matrix2::new(a[(at, at)], a[(at, at + 1)], a[(at + 1, at)], a[(at + 1, at + 1)]);
-        let (uf, tf) = (nalgebra::Vector2::new(api[at], api[at + 1]), nalgebra::Vector2::new(b[at], b[at + 1]));
-        let inverse = ff.try_inverse().unwrap_or_else(nalgebra::Matrix2::zeros);
+        let ff = nalgebra::Matrix3::from_fn(|r, k| a[(nuisance[r], nuisance[k])]);
+        let (uf, tf) =
+            (nalgebra::Vector3::from_fn(|r, _| api[nuisance[r]]), nalgebra::Vector3::from_fn(|r, _| b[nuisance[r]]));
+        let inverse = ff.pseudo_inverse(1e-12 * ff.amax()).unwrap_or_else(|_| nalgebra::Matrix3::zeros());
         let (uu, tu, tt) = (uu - uf.dot(&(inverse * uf)), tu - tf.dot(&(inverse * uf)), c - tf.dot(&(inverse * tf)));
         if uu <= 1e-12 * pi.dot(&api).max(f64::MIN_POSITIVE) || tt <= 0.0 {
             all.push(format!("'{}' -", joint.name));
@@ -557,8 +609,9 @@ fn check_explained(id: &Identification, model: &Model) -> Result<(), CalibrateEr
 }
 
 /// The normal equations of logs held out of a calibration: the same robot and effort convention as `id`'s, each
-/// log's velocity conditioned as its own data ask (a clean held-out log is read as it is): what the held-out torque
-/// error of any parameter set is computed from.
+/// log's velocity conditioned as its own data ask (a clean held-out log is read as it is), whatever the calibration
+/// was told (`--velocity`, `--cutoff`): what the held-out torque error of any parameter set is computed from, one
+/// measure for every way of calibrating.
 pub fn held_out(
     paths: &[PathBuf],
     document: Option<(&str, &str)>,
@@ -576,7 +629,7 @@ pub fn held_out(
                 source: IdentifyError::Dof(log.model.dof(), id.model.dof()),
             });
         }
-        let (velocity, _) = sum_rows(std::slice::from_ref(log), &options.conditioning)
+        let (velocity, _) = sum_rows(std::slice::from_ref(log), &Conditioning::default())
             .map_err(|source| CalibrateError::Identify { file: log.name(), source })?;
         sums.merge(&velocity);
     }

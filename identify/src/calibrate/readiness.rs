@@ -4,11 +4,10 @@
 use std::path::PathBuf;
 
 use dynforge_recording::Reading;
-use dynforge_recording::log::{Log, log_of, still_joints};
+use dynforge_recording::log::{Log, log_of};
 use dynforge_recording::{Bag, recording_of};
 
 use super::MIN_ROWS;
-use crate::REST_SPEED;
 use crate::signals::{Conditioning, VelocitySource, choose_signals};
 
 /// Rates the identification is tested at [Hz]: a log outside them is read, with a caution.
@@ -44,39 +43,15 @@ impl Readiness {
 
 fn identify(log: Log) -> Result<String, String> {
     let logs = [log];
-    let still = still_joints(&logs);
-    if !still.is_empty() {
-        let names: Vec<&str> = still.keys().map(String::as_str).collect();
-        return Err(format!(
-            "joint(s) {} never move in the log: weld them with --fix {}",
-            names.join(", "),
-            names.join(" --fix ")
-        ));
-    }
+    // Joints that move too little (a gripper's, held still) identify welds, as it says.
+    let idle = super::idle_joints(&logs);
     let log = &logs[0];
     let n = log.model.dof();
-    // Samples where each joint moves (central differences of its positions faster than the rest speed): under
-    // [`MIN_ROWS`] of them, identify refuses it.
-    let moving = |j: usize| -> usize {
-        let step = 2.0 * log.dt;
-        let count = |s: &dynforge_recording::JointTrajectory| {
-            (1..s.len().saturating_sub(1))
-                .filter(|&i| ((s.q[(i + 1) * n + j] - s.q[(i - 1) * n + j]) / step).abs() > REST_SPEED)
-                .count()
-        };
-        log.segments.iter().map(count).sum()
-    };
-    let idle: Vec<&str> =
-        (0..n).filter(|&j| moving(j) < MIN_ROWS).map(|j| log.model.joints()[j].name.as_str()).collect();
-    if !idle.is_empty() {
-        return Err(format!(
-            "joint(s) {} move too little (under {MIN_ROWS} moving samples): record more motion of them, or weld them \
-             with --fix {}",
-            idle.join(", "),
-            idle.join(" --fix ")
-        ));
+    if idle.len() == n {
+        return Err("no joint moves in the log: nothing to calibrate from".into());
     }
     let silent: Vec<&str> = (0..n)
+        .filter(|&j| !idle.contains_key(&log.model.joints()[j].name))
         .filter(|&j| log.segments.iter().all(|s| (0..s.len()).all(|i| s.tau[i * n + j] == 0.0)))
         .map(|j| log.model.joints()[j].name.as_str())
         .collect();
@@ -92,10 +67,14 @@ fn identify(log: Log) -> Result<String, String> {
     };
     let mut said = format!(
         "{} joints, {} samples in {} stretch(es) at {rate:.1} Hz; {velocity}",
-        n,
+        n - idle.len(),
         log.samples(),
         log.segments.len()
     );
+    if !idle.is_empty() {
+        let names: Vec<&str> = idle.keys().map(String::as_str).collect();
+        said += &format!("; {} move too little (under {MIN_ROWS} moving samples): welded", names.join(", "));
+    }
     if !(0.95 * TESTED_RATES.0..=1.05 * TESTED_RATES.1).contains(&rate) {
         said += &format!(" (a rate outside the {:.0} Hz-{:.0} kHz tested)", TESTED_RATES.0, TESTED_RATES.1 / 1e3);
     }

@@ -7,7 +7,8 @@ use dynforge_robot::Model;
 use dynforge_robot::parameters::dynamic_parameters;
 use nalgebra::{DMatrix, Matrix3};
 
-use crate::consistent::{CoordinatePrior, Solution, friction_coordinate, link_coordinate};
+use crate::consistent::{CoordinatePrior, Solution, drive_coordinate, friction_coordinate, link_coordinate};
+use crate::drive::{Drive, drives, identified};
 use crate::normal::NormalEquations;
 use crate::signals::{EffortConvention, VelocityChoice, VelocitySource, effort_scatter};
 use crate::solve::LeastSquares;
@@ -122,13 +123,16 @@ pub struct LinkEstimate {
     pub inertia: [Estimated; 6],
 }
 
-/// A joint's friction (N m, N m s/rad; prismatic: N, N s/m) and what its torques showed.
+/// A joint's friction (N m, N m s/rad; prismatic: N, N s/m), its drive's terms (`crate::drive`: kg m^2 and N m;
+/// prismatic: kg and N) and what its torques showed.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct JointEstimate {
     pub name: String,
     pub prismatic: bool,
     pub coulomb: Estimated,
     pub viscous: Estimated,
+    pub armature: Estimated,
+    pub offset: Estimated,
     /// The torque noise its residual shows [N m or N], and the residual's integrated autocorrelation time [samples].
     pub noise: f64,
     pub correlation: f64,
@@ -162,6 +166,9 @@ pub struct Identification {
     pub iterations: usize,
     pub converged: bool,
     pub notes: Vec<String>,
+    /// The least-squares estimate (base parameters, minimum norm): not a robot, a reference for torque prediction.
+    #[serde(skip)]
+    pub least_squares: Vec<f64>,
     /// The calibrated robot.
     #[serde(skip)]
     pub model: Model,
@@ -184,6 +191,13 @@ pub(crate) struct Fitted<'a> {
     pub logs: &'a [Log],
     /// What conditioning does to white effort noise ([`crate::signals::noise_gain`]).
     pub noise_gain: f64,
+}
+
+impl Fitted<'_> {
+    /// The identified vector at the solution: the robot's parameters and the drives'.
+    fn solution_parameters(&self) -> Vec<f64> {
+        crate::consistent::parameters(self.model.dof(), &self.solution.x)
+    }
 }
 
 /// A link's reported parameters `(mass, com, inertia about the COM in link axes)` at coordinates `theta`.
@@ -245,7 +259,8 @@ impl Identification {
                 }
             })
             .collect();
-        let pi = dynamic_parameters(&f.calibrated);
+        let drive_values = drives(n, &f.solution_parameters());
+        let pi = identified(&dynamic_parameters(&f.calibrated), &drive_values);
         let nrmse = f.ne.nrmse(&pi);
         let segments: Vec<&dynforge_recording::JointTrajectory> = f.logs.iter().flat_map(|l| &l.segments).collect();
         let floors: Vec<f64> = effort_scatter(&segments).iter().map(|s| f.noise_gain * s).collect();
@@ -256,11 +271,18 @@ impl Identification {
                     let at = friction_index(n, j) + which;
                     Estimated::new(pi[at], f.solution.covariance[(k, k)].sqrt(), nominal[at], prior_cov[(k, k)].sqrt())
                 };
+                let d = |which: usize| {
+                    let k = drive_coordinate(n, j, which);
+                    let (value, std) = (f.solution.x[k], f.solution.covariance[(k, k)].sqrt());
+                    Estimated::new(value, std, f.prior.mean[k], prior_cov[(k, k)].sqrt())
+                };
                 JointEstimate {
                     name: f.model.joints()[j].name.clone(),
                     prismatic: f.model.is_prismatic(j),
                     coulomb: e(0),
                     viscous: e(1),
+                    armature: d(0),
+                    offset: d(1),
                     noise: f.noise[j],
                     correlation: f.correlation[j],
                     nrmse: nrmse[j],
@@ -278,7 +300,7 @@ impl Identification {
             effort: f.convention,
             effort_reason: String::new(),
             rank: f.ls.rank,
-            parameters: nominal.len(),
+            parameters: f.ne.columns(),
             nrmse_urdf: f.ne.mean_nrmse(&nominal),
             nrmse_least_squares: f.ne.mean_nrmse(&f.ls.pi),
             nrmse_calibrated: f.ne.mean_nrmse(&pi),
@@ -287,6 +309,7 @@ impl Identification {
             iterations: f.solution.iterations,
             converged: f.solution.converged,
             notes: Vec::new(),
+            least_squares: f.ls.pi.clone(),
             model: f.calibrated,
         }
     }
@@ -308,6 +331,17 @@ impl Identification {
             joint.viscous.value = pi[friction_index(n, j) + 1];
         }
         self.model = model.clone();
+    }
+
+    /// Each joint's drive terms as identified (the URDF holds none).
+    pub fn drives(&self) -> Vec<Drive> {
+        self.joints.iter().map(|j| Drive { armature: j.armature.value, offset: j.offset.value }).collect()
+    }
+
+    /// The identified vector of the calibrated robot: its parameters (as [`Identification::model`] holds them) and
+    /// its drives'.
+    pub fn identified(&self) -> Vec<f64> {
+        identified(&dynamic_parameters(&self.model), &self.drives())
     }
 
     /// Parameters the prior decided (the logs could not tell them), by name.
@@ -381,7 +415,8 @@ impl std::fmt::Display for Identification {
         writeln!(
             f,
             "\nlinks (value ± standard deviation; mass ×÷ a factor, one standard deviation of its logarithm; * = the \
-             logs cannot tell it: the URDF's value and spread)"
+             logs tell it less than the URDF does: its spread is over half the URDF's, and its value is the URDF's \
+             moved only as far as what the logs do tell pulls it)"
         )?;
         writeln!(
             f,
@@ -409,11 +444,18 @@ impl std::fmt::Display for Identification {
             let i = &l.inertia;
             writeln!(f, "  {:<22} {} {} {}", l.name, cell(&i[1]), cell(&i[2]), cell(&i[4]))?;
         }
-        writeln!(f, "\njoints (friction in N m and N m s/rad; prismatic: N and N s/m)")?;
-        writeln!(f, "  {:<22} {:>23} {:>23} {:>10} {:>8}", "joint", "coulomb", "viscous", "noise", "NRMSE")?;
+        writeln!(
+            f,
+            "\njoints (friction in N m and N m s/rad, rotor inertia in kg m^2, offset in N m; prismatic: N, N s/m, kg, N)"
+        )?;
+        writeln!(
+            f,
+            "  {:<22} {:>23} {:>23} {:>23} {:>23} {:>10} {:>8}",
+            "joint", "coulomb", "viscous", "rotor inertia", "offset", "noise", "NRMSE"
+        )?;
         for j in &self.joints {
-            let (c, v) = (cell(&j.coulomb), cell(&j.viscous));
-            writeln!(f, "  {:<22} {c} {v} {:>10.2e} {:>8.4}", j.name, j.noise, j.nrmse)?;
+            let (c, v, a, o) = (cell(&j.coulomb), cell(&j.viscous), cell(&j.armature), cell(&j.offset));
+            writeln!(f, "  {:<22} {c} {v} {a} {o} {:>10.2e} {:>8.4}", j.name, j.noise, j.nrmse)?;
         }
         writeln!(
             f,

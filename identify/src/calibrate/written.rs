@@ -6,19 +6,32 @@ use std::path::{Path, PathBuf};
 use dynforge_proto::run_dir::write_atomic;
 use dynforge_recording::check_not_an_input;
 use dynforge_recording::log::Log;
-use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_robot::urdf;
 
 use super::{CalibrateError, Identification, Options, held_out, identify_logs, nominal};
 
-/// The torque error of the URDF as given and of the calibrated one on logs the calibration did not see.
+/// The torque error of the URDF as given, of the calibrated robot (its URDF and its drives) and of least squares on
+/// logs the calibration did not see.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct HeldOut {
     pub logs: Vec<PathBuf>,
     /// Mean over joints of the torque RMSE over the torque's spread, with the URDF as given.
     pub nrmse_urdf: f64,
-    /// The same with the calibrated URDF.
+    /// The same with the calibrated robot.
     pub nrmse_calibrated: f64,
+    /// The same with the least-squares estimate of the same logs (base parameters, same conditioning): the classical
+    /// reference, which fits torques with no regard for physics.
+    pub nrmse_least_squares: f64,
+    /// The three over every joint's rows together ([`crate::NormalEquations::pooled_nrmse`]).
+    pub pooled: Pooled,
+}
+
+/// Pooled torque NRMSE of each parameter set.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Pooled {
+    pub urdf: f64,
+    pub calibrated: f64,
+    pub least_squares: f64,
 }
 
 /// A calibration written to a URDF.
@@ -27,6 +40,8 @@ pub struct Calibrated {
     /// As the written URDF holds it.
     pub id: Identification,
     pub urdf: PathBuf,
+    /// The MuJoCo model written beside it, if asked ([`Calibrated::write_mjcf`]).
+    pub mjcf: Option<PathBuf>,
     pub held_out: Option<HeldOut>,
 }
 
@@ -82,22 +97,48 @@ pub fn write_calibrated(
                     id.notes.push("the held-out log(s) hold no motion: no torques to compare the URDFs on".into());
                     None
                 }
-                _ => Some(HeldOut {
-                    logs: holdout.to_vec(),
-                    nrmse_urdf: ne.mean_nrmse(&nominal(&log.model)),
-                    nrmse_calibrated: ne.mean_nrmse(&dynamic_parameters(&written)),
-                }),
+                _ => {
+                    let (urdf, calibrated) = (nominal(&log.model), id.identified());
+                    Some(HeldOut {
+                        logs: holdout.to_vec(),
+                        nrmse_urdf: ne.mean_nrmse(&urdf),
+                        nrmse_calibrated: ne.mean_nrmse(&calibrated),
+                        nrmse_least_squares: ne.mean_nrmse(&id.least_squares),
+                        pooled: Pooled {
+                            urdf: ne.pooled_nrmse(&urdf),
+                            calibrated: ne.pooled_nrmse(&calibrated),
+                            least_squares: ne.pooled_nrmse(&id.least_squares),
+                        },
+                    })
+                }
             }
         }
     };
-    Ok(Calibrated { id, urdf: out.to_path_buf(), held_out })
+    Ok(Calibrated { id, urdf: out.to_path_buf(), mjcf: None, held_out })
 }
 
 impl Calibrated {
-    /// The identification as JSON, with the written file and the held-out comparison.
+    /// Writes the calibrated robot as a MuJoCo model to `path` (atomically; check it with [`check_output`] before the
+    /// calibration): the URDF's bodies and friction with each joint's rotor inertia as its `armature`, and the
+    /// joints' torque offsets, which a MuJoCo joint cannot hold, as the numeric `offset` (one per joint, in order).
+    pub fn write_mjcf(&mut self, path: &Path) -> Result<(), CalibrateError> {
+        let drives = self.id.drives();
+        let armature: Vec<f64> = drives.iter().map(|d| d.armature).collect();
+        let offsets = ("offset".to_string(), drives.iter().map(|d| d.offset).collect());
+        let text = dynforge_robot::mjcf::to_mjcf(&self.id.model, &armature, &[offsets]);
+        write_atomic(path, text.as_bytes())
+            .map_err(|source| CalibrateError::Write { file: path.display().to_string(), source })?;
+        self.mjcf = Some(path.to_path_buf());
+        Ok(())
+    }
+
+    /// The identification as JSON, with the written files and the held-out comparison.
     pub fn json(&self) -> serde_json::Result<serde_json::Value> {
         let mut v = serde_json::to_value(&self.id)?;
         v["urdf"] = serde_json::json!(self.urdf);
+        if let Some(m) = &self.mjcf {
+            v["mjcf"] = serde_json::json!(m);
+        }
         if let Some(h) = &self.held_out {
             v["held_out"] = serde_json::json!(h);
         }
@@ -111,12 +152,21 @@ impl std::fmt::Display for Calibrated {
         if let Some(h) = &self.held_out {
             writeln!(
                 f,
-                "torque NRMSE on {} held-out log(s): calibrated {:.4}, URDF as given {:.4}",
+                "torque NRMSE on {} held-out log(s), mean over joints / pooled: calibrated {:.4} / {:.4}, URDF as \
+                 given {:.4} / {:.4}, least squares {:.4} / {:.4}",
                 h.logs.len(),
                 h.nrmse_calibrated,
-                h.nrmse_urdf
+                h.pooled.calibrated,
+                h.nrmse_urdf,
+                h.pooled.urdf,
+                h.nrmse_least_squares,
+                h.pooled.least_squares
             )?;
         }
-        writeln!(f, "calibrated URDF: {}", self.urdf.display())
+        writeln!(f, "calibrated URDF: {}", self.urdf.display())?;
+        if let Some(m) = &self.mjcf {
+            writeln!(f, "calibrated MuJoCo model: {} (rotor inertia as armature)", m.display())?;
+        }
+        Ok(())
     }
 }
