@@ -61,6 +61,9 @@ pub struct CalibrateArgs {
     /// A joint welded as the excitations were designed (`excite --fix`); the logs' is welded at its mean position.
     #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
     fix: Vec<(String, f64)>,
+    /// Write the calibration even when the search stopped before converging (its values are where it stopped).
+    #[arg(long)]
+    accept_unconverged: bool,
     #[command(flatten)]
     output: Output,
 }
@@ -76,6 +79,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         reading: args.signals.reading(&fixed)?,
         // The family is made for the robot as --fix names it: a joint welded here and not there is two robots.
         weld_idle: false,
+        accept_unconverged: args.accept_unconverged,
     };
 
     // The files first, then the bag: what cannot be used is refused before minutes of simulation. The URDF written

@@ -31,6 +31,9 @@ pub struct IdentifyArgs {
     /// Weld this joint at its mean logged position (a joint the logs do not move, e.g. a gripper's); repeatable.
     #[arg(long, value_name = "JOINT")]
     fix: Vec<String>,
+    /// Write the calibration even when the search stopped before converging (its values are where it stopped).
+    #[arg(long)]
+    accept_unconverged: bool,
     #[command(flatten)]
     output: Output,
 }
@@ -162,6 +165,7 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         conditioning: args.signals.conditioning(),
         reading: args.signals.reading(&args.fix)?,
         weld_idle: true,
+        accept_unconverged: args.accept_unconverged,
     };
     args.output.check_mjcf(&args.logs, document, &out)?;
     let mut calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;

@@ -154,6 +154,40 @@ fn drives_of(arm: &Arm, drives: &[(&str, f64, f64)]) {
     .unwrap();
     assert!(check["relative"].as_f64().unwrap() < 1e-6, "{}: {check}", arm.name);
     assert!(check["coulomb"].as_f64().unwrap() < 1e-12 && check["offset"].as_f64().unwrap() < 1e-12, "{check}");
+    // The URDF written is the nominal one but for the moving links' <inertial> and the moving joints' damping and
+    // friction: the welded hand's and fingers' inertials, the Panda's own <dynamics> attributes, all kept.
+    let v: Value = serde_json::from_slice(&run.stdout).unwrap();
+    let names = |key: &str| -> Vec<String> {
+        v[key].as_array().unwrap().iter().map(|e| e["name"].as_str().unwrap().to_string()).collect()
+    };
+    let (links, joints) = (names("links"), names("joints"));
+    let (before, after) = (std::fs::read_to_string(&nominal).unwrap(), std::fs::read_to_string(&urdf).unwrap());
+    assert_eq!(uncalibrated(&after, &links, &joints), uncalibrated(&before, &links, &joints), "{}", arm.name);
+}
+
+/// `doc` without what a calibration writes: the `<inertial>` of each link of `links`, the `damping` and `friction`
+/// values of each joint of `joints`.
+fn uncalibrated(doc: &str, links: &[String], joints: &[String]) -> String {
+    let mut s = doc.to_string();
+    for link in links {
+        let at = s.find(&format!("<link name=\"{link}\"")).unwrap();
+        let end = at + s[at..].find("</link>").unwrap();
+        if let Some(a) = s[at..end].find("<inertial>").map(|k| at + k) {
+            let b = a + s[a..].find("</inertial>").unwrap() + "</inertial>".len();
+            s.replace_range(a..b, "");
+        }
+    }
+    for joint in joints {
+        let at = s.find(&format!("<joint name=\"{joint}\"")).unwrap();
+        let end = at + s[at..].find("</joint>").unwrap();
+        for attribute in ["damping=\"", "friction=\""] {
+            if let Some(a) = s[at..end].find(attribute).map(|k| at + k + attribute.len()) {
+                let b = a + s[a..].find('"').unwrap();
+                s.replace_range(a..b, "");
+            }
+        }
+    }
+    s
 }
 
 fn path(p: &Path) -> &str {

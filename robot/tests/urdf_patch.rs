@@ -147,3 +147,29 @@ fn a_document_of_another_robot_is_refused() {
     let e = urdf::patch(&doc, "user.urdf", &other).unwrap_err().to_string();
     assert!(e.contains("user.urdf") && e.contains("wrist_3"), "{e}");
 }
+
+/// A `<dynamics>` with a simulator's own attributes (the Panda's description has `D`, `K`, `mu_coulomb`,
+/// `mu_viscous`) keeps them, in their order and quoting; only `damping` and `friction` change, and one that lacks
+/// `friction` gains it.
+#[test]
+fn a_joint_s_other_dynamics_attributes_are_kept() {
+    let plain = robot(3).urdf();
+    let at = plain.find("<joint name=\"joint_1\"").unwrap();
+    let start = at + plain[at..].find("<dynamics").unwrap();
+    let end = start + plain[start..].find("/>").unwrap() + 2;
+    let own = "<dynamics D='1' K=\"7000\" damping=\"0.5\" mu_coulomb=\"0\"/>";
+    let doc = format!("{}{own}{}", &plain[..start], &plain[end..]);
+    let original = urdf::parse(&doc, "user.urdf").unwrap();
+    let estimate = target(&original, |name, v| match &name[..4] {
+        "coul" | "visc" => v * 1.3 + 0.01,
+        _ => v,
+    });
+    let (text, _) = urdf::patch(&doc, "user.urdf", &estimate).unwrap();
+    let f = estimate.joints()[1].friction;
+    let written = format!(
+        "<dynamics D='1' K=\"7000\" damping=\"{:?}\" mu_coulomb=\"0\" friction=\"{:?}\"/>",
+        f.viscous, f.coulomb
+    );
+    assert!(text.contains(&written), "{}", &text[text.find("<joint name=\"joint_1\"").unwrap()..][..400]);
+    assert_same_parameters(&urdf::parse(&text, "patched.urdf").unwrap(), &estimate);
+}

@@ -57,6 +57,9 @@ pub struct Options {
     /// with a note, rather than refused: what a user's logs of an arm with a gripper held still want, and not what
     /// a family made for the robot as named wants (`dynforge calibrate`).
     pub weld_idle: bool,
+    /// Whether a search that stopped before converging may still be written (its values are where it stopped, not
+    /// the optimum, and its spreads are not the posterior's).
+    pub accept_unconverged: bool,
 }
 
 impl Default for Options {
@@ -66,6 +69,7 @@ impl Default for Options {
             conditioning: Conditioning::default(),
             reading: Reading::default(),
             weld_idle: true,
+            accept_unconverged: false,
         }
     }
 }
@@ -103,6 +107,11 @@ pub enum CalibrateError {
          robot's, and that the log's joints, units and signs are the URDF's"
     )]
     Unexplained { joint: String, residual: f64, noise: f64 },
+    #[error(
+        "the search stopped after {0} iterations without converging: nothing was written; its values are not the \
+         optimum's. Record richer motion, check the URDF, or write it anyway with --accept-unconverged"
+    )]
+    NotConverged(usize),
 }
 
 /// Fewest moving samples of a joint that identification takes: its friction alone has two unknowns, and a tenth

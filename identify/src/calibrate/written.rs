@@ -80,6 +80,9 @@ pub fn write_calibrated(
     holdout: &[PathBuf],
     out: &Path,
 ) -> Result<Calibrated, CalibrateError> {
+    if !id.converged && !options.accept_unconverged {
+        return Err(CalibrateError::NotConverged(id.iterations));
+    }
     let log = &read[0];
     let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
     id.notes.extend(notes);

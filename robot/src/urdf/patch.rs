@@ -249,6 +249,31 @@ fn check_same_joints(original: &Model, model: &Model) -> Result<(), ModelProblem
     Ok(())
 }
 
+/// The start tag `tag` (`<name a="1" b='2'/>` or `<name ...>`) with each attribute of `values` set: its value
+/// replaced where the tag has it, else the attribute added at the end; every other byte kept.
+fn with_attributes(tag: &str, values: &[(&str, String)]) -> String {
+    let mut out = tag.to_string();
+    for (name, value) in values {
+        let found = [b'"', b'\''].iter().find_map(|&quote| {
+            let pattern = format!("{name}={}", quote as char);
+            out.match_indices(&pattern)
+                .find(|(k, _)| out[..*k].ends_with(char::is_whitespace))
+                .map(|(k, _)| (k + pattern.len(), quote as char))
+        });
+        match found {
+            Some((start, quote)) => {
+                let end = out[start..].find(quote).map_or(out.len(), |k| start + k);
+                out.replace_range(start..end, value);
+            }
+            None => {
+                let close = out.trim_end_matches('>').trim_end_matches('/').trim_end().len();
+                out.insert_str(close, &format!(" {name}=\"{value}\""));
+            }
+        }
+    }
+    out
+}
+
 /// `document` with `edits` (of disjoint ranges) made.
 fn apply(document: &str, mut edits: Vec<Edit>) -> String {
     edits.sort_by_key(|(range, _)| std::cmp::Reverse(range.start));
@@ -287,9 +312,17 @@ pub fn patch_welded(
             .find("joint", &joint.name)
             .ok_or_else(|| err(ModelProblem::Parse(format!("no joint '{}'", joint.name))))?;
         let f = joint.friction;
-        edits.extend(put(document, element, "dynamics", |_| {
-            format!("<dynamics damping=\"{:?}\" friction=\"{:?}\"/>", f.viscous, f.coulomb)
-        }));
+        let values = [("damping", format!("{:?}", f.viscous)), ("friction", format!("{:?}", f.coulomb))];
+        match element.children.iter().find(|(t, _)| t == "dynamics") {
+            // The element's other attributes (a simulator's own: Gazebo's, a driver's) are kept as written.
+            Some((_, range)) => {
+                let end = document[range.clone()].find('>').map_or(range.end, |k| range.start + k + 1);
+                edits.push((range.start..end, with_attributes(&document[range.start..end], &values)));
+            }
+            None => edits.extend(put(document, element, "dynamics", |_| {
+                format!("<dynamics damping=\"{}\" friction=\"{}\"/>", values[0].1, values[1].1)
+            })),
+        }
 
         let name = &original.links()[k].name;
         let element = doc.find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
