@@ -273,8 +273,12 @@ impl Model {
             if j.kind != JointKind::Continuous && !(l.lower < l.upper) {
                 return Err(bad(format!("limits lower {} / upper {} do not bound a range", l.lower, l.upper)));
             }
-            if !(l.effort > 0.0) || !(l.velocity > 0.0) {
-                return Err(bad(format!("effort {} and velocity {} limits must be positive", l.effort, l.velocity)));
+            // Finite too: they size the identification's priors, the excitation's scaling and the controller's gains.
+            if !(l.effort > 0.0 && l.effort.is_finite()) || !(l.velocity > 0.0 && l.velocity.is_finite()) {
+                return Err(bad(format!(
+                    "effort {} and velocity {} limits must be positive and finite (the joint's real limits)",
+                    l.effort, l.velocity
+                )));
             }
             let f = &j.friction;
             if !(f.coulomb >= 0.0 && f.viscous >= 0.0 && f.coulomb.is_finite() && f.viscous.is_finite()) {

@@ -125,6 +125,14 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
 
     assert_eq!(problem("<robot name='x'><link name='base'/></robot>").1, ModelProblem::NoMovingJoint);
 
+    // An infinite effort or velocity limit is no joint's: refused, naming the joint.
+    for (from, to) in [("effort=\"100\"", "effort=\"inf\""), ("velocity=\"5\"", "velocity=\"inf\"")] {
+        let unbounded = j0.replace(from, to);
+        assert_ne!(unbounded, j0);
+        let (msg, p) = problem(&format!("<robot name='x'><link name='base'/>{l1}{unbounded}</robot>"));
+        assert!(matches!(p, ModelProblem::InvalidJoint { ref joint, .. } if joint == "j0") && msg.contains("finite"));
+    }
+
     // A number that is not one names its element and line (the XML reader's error names neither).
     let (msg, _) = problem(&format!(
         "<robot name='x'>\n<link name='base'/>\n{}{j0}</robot>",
