@@ -86,15 +86,18 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     // lands in none of the inputs, the excitations and the families' cache included.
     check_output(&args.logs, document, &args.output.holdout, &out)?;
     args.output.check_mjcf(&args.logs, document, &out)?;
-    dynforge_recording::check_not_an_input(&out, std::slice::from_ref(&args.excitation))?;
     let cache = cache_dir(args.cache.as_deref())?;
-    // The cache may not exist yet: inside it is inside it all the same.
-    if dynforge_proto::run_dir::resolve(&out).starts_with(dynforge_proto::run_dir::resolve(&cache)) {
-        anyhow::bail!(
-            "{}: this output would overwrite the input {} (the families' cache) or a file of it: choose another --out",
-            out.display(),
-            cache.display()
-        );
+    for written in args.output.written(&out) {
+        dynforge_recording::check_not_an_input(&written, std::slice::from_ref(&args.excitation))?;
+        // The cache may not exist yet: inside it is inside it all the same.
+        if dynforge_proto::run_dir::resolve(&written).starts_with(dynforge_proto::run_dir::resolve(&cache)) {
+            anyhow::bail!(
+                "{}: this output would overwrite the input {} (the families' cache) or a file of it: choose another \
+                 --out or --mjcf",
+                written.display(),
+                cache.display()
+            );
+        }
     }
     let (family, sources) = dynforge_worker::family::prepare(
         &args.urdf,

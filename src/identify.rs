@@ -73,6 +73,11 @@ impl Output {
         Ok(())
     }
 
+    /// The files a calibration writes: the URDF `out`, and the MuJoCo model if asked.
+    pub fn written(&self, out: &Path) -> Vec<PathBuf> {
+        std::iter::once(out.to_path_buf()).chain(self.mjcf.clone()).collect()
+    }
+
     /// Writes the MuJoCo model, if asked.
     pub fn write_mjcf(&self, calibrated: &mut Calibrated) -> Result<()> {
         if let Some(mjcf) = &self.mjcf {

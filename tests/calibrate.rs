@@ -137,14 +137,18 @@ fn calibrate_refuses_another_robots_excitation_before_writing_anything() {
     assert!(!o.status.success());
     assert!(err.contains("excitation-0.json"), "{err}");
     assert!(!out.exists() && !cache.exists(), "something was written");
-    // --out into the excitations or the cache is refused before anything is read, and leaves both as they were.
+    // --out or --mjcf into the excitations or the cache is refused before anything is read, and leaves both as they
+    // were.
     let before = std::fs::read(excite.join("excitation-0.json")).unwrap();
     for target in [excite.join("excitation-0.json"), cache.join("families/k/manifest.toml")] {
-        let mut args = vec!["calibrate", bag.to_str().unwrap(), "--urdf", &ur5.urdf, "--excitation"];
-        args.extend([excite.to_str().unwrap(), "--cache", cache.to_str().unwrap(), "--out", target.to_str().unwrap()]);
-        let o = dynforge(&args);
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success() && err.contains("would overwrite the input"), "{err}");
+        for flag in ["--out", "--mjcf"] {
+            let mut args = vec!["calibrate", bag.to_str().unwrap(), "--urdf", &ur5.urdf, "--excitation"];
+            args.extend([excite.to_str().unwrap(), "--cache", cache.to_str().unwrap(), flag, target.to_str().unwrap()]);
+            args.extend(["--out", out.to_str().unwrap()].iter().filter(|_| flag == "--mjcf"));
+            let o = dynforge(&args);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(!o.status.success() && err.contains("would overwrite the input"), "{flag}: {err}");
+        }
     }
     assert_eq!(std::fs::read(excite.join("excitation-0.json")).unwrap(), before);
     assert!(!cache.exists(), "something was written");

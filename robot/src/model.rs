@@ -274,7 +274,7 @@ impl Model {
                 return Err(bad(format!("limits lower {} / upper {} do not bound a range", l.lower, l.upper)));
             }
             // Finite too: they size the identification's priors, the excitation's scaling and the controller's gains.
-            if !(l.effort > 0.0 && l.effort.is_finite()) || !(l.velocity > 0.0 && l.velocity.is_finite()) {
+            if !(l.effort > 0.0 && l.effort.is_finite() && l.velocity > 0.0 && l.velocity.is_finite()) {
                 return Err(bad(format!(
                     "effort {} and velocity {} limits must be positive and finite (the joint's real limits)",
                     l.effort, l.velocity
