@@ -8,7 +8,7 @@ use dynforge_robot::parameters::dynamic_parameters;
 use nalgebra::{DMatrix, Matrix3};
 
 use crate::consistent::{CoordinatePrior, Solution, drive_coordinate, friction_coordinate, link_coordinate};
-use crate::drive::{Drive, drives, identified};
+use crate::drive::{Drive, identified};
 use crate::normal::NormalEquations;
 use crate::signals::{EffortConvention, VelocityChoice, VelocitySource, effort_scatter};
 use crate::solve::LeastSquares;
@@ -193,13 +193,6 @@ pub(crate) struct Fitted<'a> {
     pub noise_gain: f64,
 }
 
-impl Fitted<'_> {
-    /// The identified vector at the solution: the robot's parameters and the drives'.
-    fn solution_parameters(&self) -> Vec<f64> {
-        crate::consistent::parameters(self.model.dof(), &self.solution.x)
-    }
-}
-
 /// A link's reported parameters `(mass, com, inertia about the COM in link axes)` at coordinates `theta`.
 fn reported(theta: &[f64]) -> [f64; 10] {
     let (m, c, i) = standard::standard(&standard::params(theta), &Matrix3::identity());
@@ -259,7 +252,9 @@ impl Identification {
                 }
             })
             .collect();
-        let drive_values = drives(n, &f.solution_parameters());
+        // The drives' terms are their coordinates themselves.
+        let drive = |j: usize, which: usize| x[drive_coordinate(n, j, which)];
+        let drive_values: Vec<Drive> = (0..n).map(|j| Drive { armature: drive(j, 0), offset: drive(j, 1) }).collect();
         let pi = identified(&dynamic_parameters(&f.calibrated), &drive_values);
         let nrmse = f.ne.nrmse(&pi);
         let segments: Vec<&dynforge_recording::JointTrajectory> = f.logs.iter().flat_map(|l| &l.segments).collect();
@@ -273,8 +268,12 @@ impl Identification {
                 };
                 let d = |which: usize| {
                     let k = drive_coordinate(n, j, which);
-                    let (value, std) = (f.solution.x[k], f.solution.covariance[(k, k)].sqrt());
-                    Estimated::new(value, std, f.prior.mean[k], prior_cov[(k, k)].sqrt())
+                    Estimated::new(
+                        drive(j, which),
+                        f.solution.covariance[(k, k)].sqrt(),
+                        f.prior.mean[k],
+                        prior_cov[(k, k)].sqrt(),
+                    )
                 };
                 JointEstimate {
                     name: f.model.joints()[j].name.clone(),
