@@ -108,10 +108,10 @@ pub enum CalibrateError {
     )]
     Unexplained { joint: String, residual: f64, noise: f64 },
     #[error(
-        "the search stopped after {0} iterations without converging: nothing was written; its values are not the \
-         optimum's. Record richer motion, check the URDF, or write it anyway with --accept-unconverged"
+        "{out}: not written: the search stopped after {iterations} iterations without converging, and its values are \
+         not the optimum's. Record richer motion, check the URDF, or write it anyway with --accept-unconverged"
     )]
-    NotConverged(usize),
+    NotConverged { out: String, iterations: usize },
 }
 
 /// Fewest moving samples of a joint that identification takes: its friction alone has two unknowns, and a tenth
@@ -142,7 +142,8 @@ pub fn identify_logs(
     }
     let logs = read_logs(paths, document, &options.reading)?;
     let idle = idle_joints(&logs);
-    if !options.weld_idle || idle.is_empty() {
+    // With every joint idle there is no arm left to weld them to: the refusal names them.
+    if !options.weld_idle || idle.is_empty() || idle.len() == logs[0].model.dof() {
         return identify_read(logs, options);
     }
     let mut reading = options.reading.clone();

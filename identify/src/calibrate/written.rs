@@ -81,7 +81,7 @@ pub fn write_calibrated(
     out: &Path,
 ) -> Result<Calibrated, CalibrateError> {
     if !id.converged && !options.accept_unconverged {
-        return Err(CalibrateError::NotConverged(id.iterations));
+        return Err(CalibrateError::NotConverged { out: out.display().to_string(), iterations: id.iterations });
     }
     let log = &read[0];
     let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
