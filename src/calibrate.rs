@@ -11,7 +11,7 @@ use clap::Args;
 use dynforge_coordinator::run::GenerateConfig;
 use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration};
 use dynforge_identify::calibrate::{
-    Calibrated, Identification, Kind, Options, check_output, identify_logs, identify_read, write_calibrated,
+    Calibrated, Identification, Kind, Options, check_output, check_ran, identify_logs, identify_read, write_calibrated,
 };
 use dynforge_identify::signals::Conditioning;
 use dynforge_proto::content_hash;
@@ -108,6 +108,9 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     )?;
     eprintln!("identifying {} log(s) from {}", args.logs.len(), args.urdf.display());
     let (id, read) = identify_logs(&args.logs, document, &options)?;
+    for ran in check_ran(&read, &sources.parsed()?)? {
+        eprintln!("{ran}");
+    }
     let degradation = Degradation::of(&read, id.effort);
 
     let key = json!({"family": family, "robots": args.robots, "version": env!("CARGO_PKG_VERSION")});

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_excite::write::{summary, write_design};
-use dynforge_excite::{Options, SelfCollision, design_with, start_pose};
+use dynforge_excite::{MAX_WRITTEN_SAMPLES, Options, SelfCollision, design_with, start_pose};
 use dynforge_proto::flags::{non_negative, positive, weld, whole};
 use dynforge_robot::urdf;
 
@@ -78,6 +78,15 @@ pub fn run(args: ExciteArgs) -> Result<()> {
         seed: args.seed,
         ..Options::default()
     };
+    let written = args.duration * args.rate;
+    if written > MAX_WRITTEN_SAMPLES {
+        anyhow::bail!(
+            "--duration {} s at --rate {} Hz writes {written:.1e} samples per trajectory, more than {MAX_WRITTEN_SAMPLES:e}: \
+             give a lower --rate (a controller takes 100-1000 Hz) or a shorter --duration",
+            args.duration,
+            args.rate
+        );
+    }
     let bar = dynforge_display::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
     bar.set_message(format!("designing {} excitations of {}", options.count, model.name()));
     let collision = match args.no_collision {

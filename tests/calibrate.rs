@@ -67,6 +67,10 @@ fn calibrate_writes_identifys_urdf_with_spreads_its_family_measured_and_reuses_t
     let argv: Vec<&str> = args.iter().map(String::as_str).collect();
     let first = dynforge(&argv);
     let c = json_of(&first);
+    let said = String::from_utf8_lossy(&first.stderr);
+    for k in 0..2 {
+        assert!(said.contains(&format!("bag-{k}.mcap: ran excitation-{k}.json from 0.00 s")), "{said}");
+    }
 
     // The same identification as `identify` at the same spread: the same file, byte for byte, and the same values.
     let mut id_args = vec!["identify".to_string()];
@@ -105,6 +109,33 @@ fn calibrate_writes_identifys_urdf_with_spreads_its_family_measured_and_reuses_t
         v.as_object_mut().unwrap().remove("logs");
     }
     assert_eq!(again, before);
+}
+
+/// Logs that did not run the excitations are refused before the family is made, naming the log or the excitation:
+/// one bag against a set of two, and a bag of some other motion beside one that ran its excitation.
+#[test]
+fn calibrate_refuses_logs_that_did_not_run_the_excitations() {
+    let Some(py) = dynforge_testkit::reference_python() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let h = Harness::new(py, tmp.path(), &UR5);
+    let (excite, bags) = excitations_and_bags(&h, tmp.path());
+    let other = h.log(&UR5, 5, 6.0, "sampled", LogKind::Noisy, 1000.0);
+    let (cache, out) = (tmp.path().join("cache"), tmp.path().join("out.urdf"));
+    let run = |logs: &[&Path]| {
+        let mut args: Vec<&str> = vec!["calibrate"];
+        args.extend(logs.iter().map(|l| l.to_str().unwrap()));
+        args.extend(["--urdf", &h.urdf, "--excitation", excite.to_str().unwrap(), "--cache"]);
+        args.extend([cache.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        let o = dynforge(&args);
+        assert!(!o.status.success());
+        String::from_utf8_lossy(&o.stderr).to_string()
+    };
+    let one = run(&[&bags[0]]);
+    assert!(one.contains("no log ran excitation-1.json (the closest is excitation-1.json in"), "{one}");
+    let stray = run(&[&bags[0], &bags[1], &other]);
+    let name = other.file_name().unwrap().to_str().unwrap();
+    assert!(stray.contains(&format!("{name}: ran none of the excitations")), "{stray}");
+    assert!(!out.exists() && !cache.join("families").exists(), "something was made");
 }
 
 #[test]

@@ -87,6 +87,10 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     let out = dynforge(&["identify", log.to_str().unwrap(), again.to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(!out.status.success() && err.contains("twice.mcap: given twice (also as"), "{err}");
+    // So is a held-out log that is one of the logs calibrated from, however spelt.
+    let out = dynforge(&["identify", log.to_str().unwrap(), "--holdout", again.to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains("twice.mcap: held out and also calibrated from"), "{err}");
     // A directory is read as a rosbag2 bag, and one without an MCAP file says so.
     let out = dynforge(&["identify", dir.path().to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();

@@ -167,6 +167,20 @@ fn bad_requests_are_refused_naming_the_problem() {
     let o = dynforge(&["excite", "--urdf", urdf.to_str().unwrap(), "--out", out.to_str().unwrap(), "--start", "0.99"]);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("'j0'") && e.contains("not inside its range"), "{e}");
+    // Work without bound is refused before any is done, naming the flag.
+    let (u, d) = (urdf.to_str().unwrap(), out.to_str().unwrap());
+    let cases: [(&[&str], &str); 3] = [
+        (&["--rate", "1e9"], "give a lower --rate"),
+        (&["--duration", "1e9"], "or a shorter --duration"),
+        (&["--duration", "1e6", "--rate", "1"], "samples per trajectory at the design's 50 Hz"),
+    ];
+    for (flags, says) in cases {
+        let mut args = vec!["excite", "--urdf", u, "--out", d, "--no-collision"];
+        args.extend_from_slice(flags);
+        let o = dynforge(&args);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && e.contains(says), "{flags:?}: {e}");
+    }
     assert!(!out.exists(), "nothing written for a refused request");
 }
 
@@ -212,7 +226,19 @@ fn the_design_is_free_of_self_collision_by_pinocchios_account() {
         let said = dynforge_testkit::run_python(&py, &script, &argv, "");
         (String::from_utf8(o.stdout).unwrap(), serde_json::from_str::<serde_json::Value>(&said).unwrap())
     };
-    let (printed, checked) = check(&tmp.path().join("checked"), &[]);
+    // A set of three, then two into the same directory: the directory holds the two, and its manifest lists them.
+    let rerun = tmp.path().join("checked");
+    let mut three = vec!["excite", "--urdf", urdf.to_str().unwrap(), "--out", rerun.to_str().unwrap()];
+    three.extend(["--count", "3", "--duration", "8", "--evaluations", "50", "--rate", "200", "--seed", "4"]);
+    assert!(dynforge(&three).status.success());
+    assert!(rerun.join("excitation-2.json").exists());
+    let (printed, checked) = check(&rerun, &[]);
+    for ext in ["csv", "mcap", "json"] {
+        assert!(!rerun.join(format!("excitation-2.{ext}")).exists(), "a stale excitation-2.{ext} is left");
+    }
+    let set: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rerun.join("excitation-set.json")).unwrap()).unwrap();
+    assert_eq!(set["hashes"].as_array().map(Vec::len), Some(2), "{set}");
     // Pinocchio pairs geometry objects: base-upper, base-fore, base-tool, turret-fore, turret-tool; the design pairs
     // bodies (the tool welded to the forearm): base-upper, base-forearm, turret-forearm.
     assert_eq!(checked["pairs"], 5, "{checked}");
@@ -221,8 +247,17 @@ fn the_design_is_free_of_self_collision_by_pinocchios_account() {
     let report = std::fs::read_to_string(tmp.path().join("checked/report.md")).unwrap();
     assert!(report.contains("Self-collision: checked"), "{report}");
     // With a padding of 2 cm the bodies keep that far apart (the upper arm starts 5 cm above the column).
-    let (_, padded) = check(&tmp.path().join("padded"), &["--clearance", "0.02"]);
+    let (printed, padded) = check(&tmp.path().join("padded"), &["--clearance", "0.02"]);
     assert_eq!(padded["colliding"], serde_json::json!([0, 0]), "{padded}");
+    assert!(printed.contains("free of self-collision (3 body pairs checked"), "the same pairs as unpadded: {printed}");
+    // A padding the start pose itself breaks is refused, naming the pair and its distance, and nothing is written.
+    let far = tmp.path().join("far");
+    let mut args = vec!["excite", "--urdf", urdf.to_str().unwrap(), "--out", far.to_str().unwrap()];
+    args.extend(["--count", "1", "--duration", "8", "--evaluations", "20", "--clearance", "10"]);
+    let o = dynforge(&args);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("at the start pose base and upper (") && e.contains(" mm)"), "{e}");
+    assert!(!far.exists(), "nothing written for a refused request");
     let report = std::fs::read_to_string(tmp.path().join("padded/report.md")).unwrap();
     let closest: Vec<f64> = report
         .lines()

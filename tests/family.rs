@@ -107,10 +107,18 @@ fn a_family_dataset_is_reproducible_resumable_and_partitionable_and_refuses_othe
         );
     }
 
-    // Another excitation in the same directory is another dataset: refused, naming what differs.
+    // An excitation changed since `excite` wrote the set is refused, naming it; one written as the set (its
+    // manifest too) is another dataset: refused, naming what differs.
     let json = excite.join("excitation-1.json");
     let text = std::fs::read_to_string(&json).unwrap();
-    std::fs::write(&json, text.replacen("\"period\": 3.0", "\"period\": 3.5", 1)).unwrap();
+    let changed = text.replacen("\"period\": 3.0", "\"period\": 3.5", 1);
+    std::fs::write(&json, &changed).unwrap();
+    let o = dynforge(&family_args(&urdf, ex, &whole, &["--workers", "1"]));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("excitation-1.json: differs from the excitation"), "{err}");
+    let first = std::fs::read_to_string(excite.join("excitation-0.json")).unwrap();
+    let set = dynforge_proto::family::ExcitationSet::of(&[first, changed]);
+    std::fs::write(excite.join(dynforge_proto::family::SET), serde_json::to_string(&set).unwrap()).unwrap();
     let o = dynforge(&family_args(&urdf, ex, &whole, &["--workers", "1"]));
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
@@ -175,10 +183,12 @@ fn a_family_shard_is_a_physical_variant_of_the_urdf_labelled_with_its_parameters
             assert!((got - value).abs() <= 1e-12 * value.abs().max(1e-9), "{name}: label {got}, URDF {value}");
         }
         // Its torques are the variant's dynamics: the true parameters leave the pairing's second-order error
-        // ((omega dt)^2 / 24 of the swinging torque, ~2e-5; tests/pairing_on_simulation.rs).
+        // ((omega dt)^2 / 24 of the swinging torque, tests/pairing_on_simulation.rs: ~2e-5 at the generator's gains;
+        // a family's loops are stiffer, to hold the joints against twice the Coulomb friction the prior expects, 5 %
+        // of the effort limit: omega about 1.6x, ~5e-5).
         let ne = NormalEquations::of(model, &log.segments[0]).unwrap();
         let worst = ne.nrmse(&dynamic_parameters(model)).into_iter().fold(0.0, f64::max);
-        assert!(worst < 5e-5, "{}: NRMSE of its own parameters {worst:e}", path.display());
+        assert!(worst < 1.25e-4, "{}: NRMSE of its own parameters {worst:e}", path.display());
         // And the nominal URDF's do not (the variant is not the URDF).
         let nominal_worst = ne.nrmse(&dynamic_parameters(&nominal)).into_iter().fold(0.0, f64::max);
         assert!(nominal_worst > 100.0 * worst, "{}: the nominal fits as well ({nominal_worst:e})", path.display());

@@ -175,6 +175,17 @@ fn currents_without_gains_are_refused_before_the_fit_and_with_them_identify_as_t
     let o = dynforge(&["identify", db3.to_str().unwrap(), "--urdf", nominal.to_str().unwrap(), "--gains", "10,10"]);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(e.contains("--gains has 2 value(s) and the robot 6 moving joint(s)"), "{e}");
+    // A joint whose sign differs between the log and the URDF (a negative gain): refused, naming it, and nothing
+    // written.
+    let mut flipped = GAINS;
+    flipped[1] = -flipped[1];
+    let (flipped, out) = (flipped.map(|g| g.to_string()).join(","), dir.join("flipped.urdf"));
+    let (d, n, o) = (db3.to_str().unwrap(), nominal.to_str().unwrap(), out.to_str().unwrap());
+    let refused = dynforge(&["identify", d, "--urdf", n, "--gains", &flipped, "--out", o]);
+    let e = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && e.contains("effort is not the joint torque the URDF predicts"), "{e}");
+    assert!(e.contains("predicts: joint 'shoulder_lift_joint' -") && e.contains("whose sign differs"), "{e}");
+    assert!(!out.exists(), "a refused calibration writes nothing");
 }
 
 /// A logged velocity with 1 % noise (of each joint's velocity RMS), 1 % effort noise and 2^17-count encoders: the
@@ -211,7 +222,7 @@ fn noisy_velocity(arm: &Arm) {
     assert!(count(" missed") <= skipped && count(" missed") + skipped / 20 >= skipped, "{line}: {skipped} skipped");
 
     let fixed: Vec<&str> = arm.fixed.iter().flat_map(|j| ["--fix", j]).collect();
-    let true_nrmse = true_held_out(&held, &f.urdf, &fixed, dir);
+    let true_nrmse = true_held_out(&mcap, &held, &f.urdf, &fixed, dir);
     let held_flag = ["--holdout", held.to_str().unwrap()];
     for (log, columns) in [(&mcap, None), (&csv, Some(&map))] {
         let mut extra: Vec<&str> = fixed.clone();
@@ -236,12 +247,12 @@ fn noisy_velocity(arm: &Arm) {
     }
 }
 
-/// The held-out torque NRMSE of the true URDF on `held`: what identify reports for "URDF as given" when the URDF
-/// given is the truth.
-fn true_held_out(held: &Path, urdf: &str, fixed: &[&str], dir: &Path) -> f64 {
+/// The held-out torque NRMSE of the true URDF on `held`: what identify (of `log`) reports for "URDF as given" when the
+/// URDF given is the truth.
+fn true_held_out(log: &Path, held: &Path, urdf: &str, fixed: &[&str], dir: &Path) -> f64 {
     let mut extra: Vec<&str> = fixed.to_vec();
     extra.extend(["--holdout", held.to_str().unwrap()]);
-    let result = identify(held, Path::new(urdf), &dir.join("true-held.urdf"), &extra);
+    let result = identify(log, Path::new(urdf), &dir.join("true-held.urdf"), &extra);
     result["held_out"]["nrmse_urdf"].as_f64().unwrap()
 }
 

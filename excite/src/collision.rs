@@ -23,7 +23,9 @@ pub struct SelfCollision {
 
 impl SelfCollision {
     /// The bodies of `model` from `geometry` (`dynforge_robot::urdf::collision_bodies` of the URDF at `urdf`), with
-    /// the pairs that are apart at the pose `start`; bodies closer than `clearance` [m] count as touching.
+    /// the pairs that are apart at the pose `start`; bodies closer than `clearance` [m] count as touching. The pairs
+    /// checked are those apart at the start whatever the clearance (a padding checks more closely, not fewer
+    /// pairs), so a start where a checked pair is closer than the clearance is refused, naming it.
     pub fn new(
         model: &Model,
         geometry: &[Vec<Geometry>],
@@ -42,10 +44,21 @@ impl SelfCollision {
             .flat_map(|a| (a + 2..n).map(move |b| (a, b)))
             .filter(|&(a, b)| !geometry[a].is_empty() && !geometry[b].is_empty())
             .collect();
-        let mut c = SelfCollision { bodies, names, pairs: candidates, clearance };
+        let mut c = SelfCollision { bodies, names, pairs: candidates, clearance: 0.0 };
         let mut data = Data::new(model);
         let at_start = c.contacts(model, &mut data, start);
         c.pairs.retain(|p| !at_start.contains(p));
+        c.clearance = clearance;
+        let close: Vec<String> = (c.contacts(model, &mut data, start).into_iter())
+            .map(|p| format!("{} ({:.1} mm)", c.describe(p), 1e3 * c.distance(model, &mut data, start, p)))
+            .collect();
+        if !close.is_empty() {
+            return Err(ExciteError::Option(format!(
+                "--clearance {clearance} m: at the start pose {} are closer than that already (they are checked \
+                 whatever the clearance); lower --clearance or choose another --start",
+                close.join(", ")
+            )));
+        }
         Ok(c)
     }
 
@@ -86,6 +99,18 @@ impl SelfCollision {
     pub fn first_contact(&self, model: &Model, data: &mut Data, q: &[f64]) -> Option<(usize, usize)> {
         let at = self.placements(model, data, q);
         self.pairs.iter().copied().find(|&(a, b)| self.touch(&at, a, b))
+    }
+
+    /// The distance between bodies `a` and `b` at `q` [m] (0 where they intersect).
+    fn distance(&self, model: &Model, data: &mut Data, q: &[f64], (a, b): (usize, usize)) -> f64 {
+        let at = self.placements(model, data, q);
+        let each = self.bodies[a].iter().zip(&at[a]).flat_map(|(sa, pa)| {
+            self.bodies[b]
+                .iter()
+                .zip(&at[b])
+                .map(move |(sb, pb)| distance(pa, sa.shape.as_ref(), pb, sb.shape.as_ref()).map_or(0.0, |d| d.distance))
+        });
+        each.fold(f64::INFINITY, f64::min)
     }
 
     /// The smallest distance between checked pairs at `q` [m], and the pair.

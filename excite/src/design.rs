@@ -417,6 +417,14 @@ struct Candidate {
     peaks: [f64; 4],
 }
 
+/// Most samples of one trajectory the design evaluates (each candidate of the search samples it whole): about 5.5 h
+/// at its 50 Hz, past any excitation a robot runs and short of an unbounded search.
+pub const MAX_DESIGN_SAMPLES: f64 = 1e6;
+
+/// Most samples of one trajectory written at the user's rate (the CSV and the MCAP hold them all): 10 s at 1 MHz, or
+/// 2.8 h at 1 kHz, about 1 GB of CSV for a 6-joint arm.
+pub const MAX_WRITTEN_SAMPLES: f64 = 1e7;
+
 fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
     let n = model.dof();
     if n == 0 {
@@ -427,6 +435,15 @@ fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
         return Err(ExciteError::Option(
             "need at least 2 harmonics, 1 trajectory, a positive duration and rate".into(),
         ));
+    }
+    if options.duration * options.rate > MAX_DESIGN_SAMPLES {
+        return Err(ExciteError::Option(format!(
+            "a duration of {} s is {:.1e} samples per trajectory at the design's {} Hz, more than the {MAX_DESIGN_SAMPLES:e} \
+             a design evaluates (hours of motion): give a shorter --duration",
+            options.duration,
+            options.duration * options.rate,
+            options.rate
+        )));
     }
     match &options.start {
         Some(s) if s.len() != n => {

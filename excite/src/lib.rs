@@ -10,7 +10,9 @@ pub mod tours;
 pub mod write;
 
 pub use collision::SelfCollision;
-pub use design::{Clearance, Design, Options, design, design_with, start_pose};
+pub use design::{
+    Clearance, Design, MAX_DESIGN_SAMPLES, MAX_WRITTEN_SAMPLES, Options, design, design_with, start_pose,
+};
 pub use dynforge_proto::fourier::Fourier;
 
 #[derive(Debug, thiserror::Error)]

@@ -5,6 +5,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+use dynforge_proto::family::{ExcitationSet, SET, excitation_file};
 use dynforge_proto::fourier::Excitation;
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_proto::shard::TrajectoryPoint;
@@ -22,8 +23,10 @@ fn write(path: &Path, text: &str) -> Result<(), ExciteError> {
 }
 
 /// Writes `excitation-K.csv`, `excitation-K.mcap` (a `trajectory_msgs/msg/JointTrajectory`) and `excitation-K.json`
-/// per trajectory and `report.md` into `dir` (created); returns
-/// the files written. `rate` is the CSV's [Hz]; `noise` the torque noise [N m] the expected deviations assume.
+/// per trajectory, `report.md` and last the set's manifest (`dynforge_proto::family::SET`) into `dir` (created);
+/// returns the files written. The directory is one unit: the manifest goes first, so an interrupted write leaves a
+/// set no reader takes as complete, and members of an earlier, larger set are removed. `rate` is the CSV's [Hz];
+/// `noise` the torque noise [N m] the expected deviations assume.
 pub fn write_design(
     dir: &Path,
     model: &Model,
@@ -32,8 +35,18 @@ pub fn write_design(
     rate: f64,
     noise: f64,
 ) -> Result<Vec<PathBuf>, ExciteError> {
-    std::fs::create_dir_all(dir).map_err(|source| ExciteError::Write { file: dir.display().to_string(), source })?;
+    let failed = |path: &Path| {
+        let file = path.display().to_string();
+        move |source| ExciteError::Write { file, source }
+    };
+    std::fs::create_dir_all(dir).map_err(failed(dir))?;
+    let manifest = dir.join(SET);
+    match std::fs::remove_file(&manifest) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(failed(&manifest)(e)),
+        _ => {}
+    }
     let n = model.dof();
+    let mut texts = Vec::new();
     let names: Vec<&str> = model.joints().iter().map(|j| j.name.as_str()).collect();
     let mut files = Vec::new();
     for (k, f) in design.trajectories.iter().enumerate() {
@@ -71,20 +84,51 @@ pub fn write_design(
         files.push(path);
         let excitation = Excitation { joints: joint_names, series: f.clone() };
         let json = serde_json::to_string_pretty(&excitation).expect("an excitation serialises");
-        let path = dir.join(format!("excitation-{k}.json"));
-        write(&path, &format!("{json}\n"))?;
+        let path = dir.join(excitation_file(k));
+        let text = format!("{json}\n");
+        write(&path, &text)?;
         files.push(path);
+        texts.push(text);
+    }
+    for stale in stale_members(dir, design.trajectories.len()).map_err(failed(dir))? {
+        std::fs::remove_file(&stale).map_err(failed(&stale))?;
     }
     let path = dir.join("report.md");
     write(&path, &report(model, design, options, noise))?;
     files.push(path);
+    let set = serde_json::to_string_pretty(&ExcitationSet::of(&texts)).expect("a manifest serialises");
+    write(&manifest, &format!("{set}\n"))?;
+    files.push(manifest);
     Ok(files)
 }
+
+/// The files of `dir` named as members past the first `count` (`excitation-K.csv`, `.mcap`, `.json`, K >= count):
+/// what an earlier run with a larger `--count` left.
+fn stale_members(dir: &Path, count: usize) -> std::io::Result<Vec<PathBuf>> {
+    let mut stale = Vec::new();
+    for entry in std::fs::read_dir(dir)? {
+        let name = entry?.file_name();
+        let Some(name) = name.to_str() else { continue };
+        let member = name.strip_prefix("excitation-").and_then(|rest| rest.split_once('.'));
+        if let Some((k, "csv" | "mcap" | "json")) = member
+            && k.parse::<usize>().is_ok_and(|k| k >= count)
+        {
+            stale.push(dir.join(name));
+        }
+    }
+    stale.sort();
+    Ok(stale)
+}
+
+/// What a check of no body pair says (never "free of self-collision").
+const NO_PAIR: &str = "self-collision: no pair of bodies to check (each pair is joined by one joint, touches at the \
+                       start pose, or has no collision geometry)";
 
 /// Two lines for the terminal: what was designed and what it is worth beside random multi-sines.
 pub fn summary(model: &Model, design: &Design, options: &Options) -> String {
     let (d, r) = (&design.together, &design.random_together);
     let collision = match &design.clearance {
+        Some(c) if c.pairs == 0 => NO_PAIR.to_string() + "\n",
         Some(c) => {
             let pairs = c.pairs;
             let (closest, pair) = c
@@ -168,13 +212,16 @@ pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> 
         let _ = writeln!(out, "- trajectory {k}: {:.2} / {:.2} / {:.2} / {:.2}", p[0], p[1], p[2], p[3]);
     }
     match &design.clearance {
+        Some(c) if c.pairs == 0 => {
+            let _ = writeln!(out, "\nSelf-collision: {}.", NO_PAIR.trim_start_matches("self-collision: "));
+        }
         Some(c) => {
             let (per_trajectory, pairs, padding) = (&c.closest, c.pairs, c.padding);
             let _ = writeln!(
                 out,
                 "\nSelf-collision: checked with the URDF's collision geometry (meshes as their convex hulls, which only \
                  add volume) at 1 kHz, {pairs} pairs of bodies kept at least {:.1} mm apart (bodies joined by one \
-                 joint, and bodies that close at the start pose, are not checked). Smallest distance between checked \
+                 joint, and bodies that touch at the start pose, are not checked). Smallest distance between checked \
                  bodies:\n",
                 1e3 * padding
             );

@@ -180,13 +180,14 @@ pub(crate) fn scores(
 
 /// Each joint's torque residuals of the robot `calibrated` with its drives `drives` (its inertials by inverse
 /// dynamics, its friction on the conditioned Coulomb and viscous columns) on the usable rows of `c` in `range` (a row
-/// at rest is `None`), in sample order: what their autocorrelation is measured on.
+/// at rest is `None`), in sample order, each beside the joint's velocity: what their autocorrelation, and how much of
+/// them friction could be, are measured on.
 pub fn residuals(
     (calibrated, drives): (&Model, &[Drive]),
     c: &Conditioned,
     range: std::ops::Range<usize>,
     convention: EffortConvention,
-) -> Vec<Vec<Option<f64>>> {
+) -> Vec<Vec<Option<Residual>>> {
     let n = calibrated.dof();
     let moving = moving_rows(c);
     let mut data = Data::new(calibrated);
@@ -198,10 +199,18 @@ pub fn residuals(
             let k = i * n + j;
             let friction = joint.friction.coulomb * c.coulomb[k] + joint.friction.viscous * c.v[k];
             let drive = drives[j].armature * c.qdd[k] + drives[j].offset;
-            out[j].push(moving[k].then(|| c.tau[convention as usize][k] - tau[j] - friction - drive));
+            let torque = c.tau[convention as usize][k] - tau[j] - friction - drive;
+            out[j].push(moving[k].then_some(Residual { torque, velocity: c.v[k] }));
         }
     }
     out
+}
+
+/// A joint's torque residual at a row, and the joint's velocity there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Residual {
+    pub torque: f64,
+    pub velocity: f64,
 }
 
 #[cfg(test)]

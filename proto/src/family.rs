@@ -21,6 +21,26 @@ pub fn excitation_file(k: usize) -> String {
     format!("excitation-{k}.json")
 }
 
+/// The manifest of an excitation directory, written last by `dynforge excite`: the set's size and each member's
+/// hash. A directory without it is one whose writing was interrupted (or an `excite` older than it), and a member
+/// that differs from its hash, or one past the count, is not of the set.
+pub const SET: &str = "excitation-set.json";
+
+/// An excitation directory's manifest ([`SET`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExcitationSet {
+    /// FNV-1a of each `excitation-K.json`'s bytes, in hex, in order.
+    pub hashes: Vec<String>,
+}
+
+impl ExcitationSet {
+    /// The manifest of the excitations whose JSON texts are `texts` (in order).
+    pub fn of(texts: &[String]) -> Self {
+        ExcitationSet { hashes: texts.iter().map(|t| hex(t.as_bytes())).collect() }
+    }
+}
+
 /// Relative spread of the drawn variants around the URDF's values: masses and the inertia tensors' scales
 /// log-normally and independently, the tensors' shapes within half of that, centres of mass in proportion to their
 /// distance from the link's origin (as `identify`'s prior reads a URDF).
@@ -43,9 +63,11 @@ pub struct Family {
     pub prior: u32,
 }
 
-/// The prior's revision: 2 draws mass, the inertia tensor's scale and its shape independently (1 drew the principal
-/// radii independently of the mass, and the centre of mass in proportion to the link's size).
-pub const PRIOR_REVISION: u32 = 2;
+/// The prior's revision: 3 draws a friction the URDF states less of within a typical one sized from the joint's
+/// effort and speed limits (2 within 2 % of the effort limit); 2 draws mass, the inertia tensor's scale and its shape
+/// independently (1 drew the principal radii independently of the mass, and the centre of mass in proportion to the
+/// link's size).
+pub const PRIOR_REVISION: u32 = 3;
 
 fn first_prior() -> u32 {
     1
@@ -77,21 +99,45 @@ pub struct Sources {
 
 impl Sources {
     /// The URDF and the excitations of `dir` (`excitation-0.json`, `excitation-1.json`, ... as `dynforge excite`
-    /// writes them), each parsed once to name a bad file now rather than in every worker.
+    /// writes them, as many as its manifest [`SET`] lists, each with the hash it lists), each parsed once to name a
+    /// bad file now rather than in every worker.
     pub fn read(urdf: &Path, dir: &Path) -> Result<Self, FamilyError> {
         let urdf = read_text(urdf)?;
+        let manifest = dir.join(SET);
+        let rerun = "rerun `dynforge excite` into it";
+        if !manifest.exists() {
+            let message = match dir.join(excitation_file(0)).exists() {
+                true => {
+                    format!("no {SET}: its writing was interrupted, or an older `dynforge excite` wrote it; {rerun}")
+                }
+                false => format!("no {} (write one with `dynforge excite`)", excitation_file(0)),
+            };
+            return Err(FamilyError::File { file: dir.display().to_string(), message });
+        }
+        let set: ExcitationSet = serde_json::from_str(&read_text(&manifest)?).map_err(|e| FamilyError::File {
+            file: manifest.display().to_string(),
+            message: format!("not an excitation set's manifest: {e}"),
+        })?;
+        if set.hashes.is_empty() {
+            return Err(FamilyError::File {
+                file: manifest.display().to_string(),
+                message: "lists no excitation".into(),
+            });
+        }
         let mut excitations = Vec::new();
-        while dir.join(excitation_file(excitations.len())).exists() {
-            let path = dir.join(excitation_file(excitations.len()));
+        for (k, hash) in set.hashes.iter().enumerate() {
+            let path = dir.join(excitation_file(k));
             let text = read_text(&path)?;
+            if hex(text.as_bytes()) != *hash {
+                return Err(FamilyError::File {
+                    file: path.display().to_string(),
+                    message: format!(
+                        "differs from the excitation {SET} lists (changed since `excite` wrote it); {rerun}"
+                    ),
+                });
+            }
             parse_excitation(&text, &path.display().to_string())?;
             excitations.push(text);
-        }
-        if excitations.is_empty() {
-            return Err(FamilyError::File {
-                file: dir.display().to_string(),
-                message: format!("no {} (write one with `dynforge excite`)", excitation_file(0)),
-            });
         }
         Ok(Sources { urdf, excitations })
     }
@@ -169,6 +215,37 @@ fn parse_excitation(text: &str, file: &str) -> Result<Excitation, FamilyError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An excitation directory is read through its manifest: as many members as it lists, each with its hash; one
+    /// without a manifest (an interrupted write) or with a member changed since is refused, naming the file.
+    #[test]
+    fn an_excitation_set_is_read_through_its_manifest() {
+        let tmp = tempfile::tempdir().expect("a temporary directory");
+        let (dir, urdf) = (tmp.path(), tmp.path().join("robot.urdf"));
+        std::fs::write(&urdf, "<robot name=\"r\"/>").unwrap();
+        let member = |k: usize| {
+            format!(
+                r#"{{"joints": ["a"], "series": {{"period": {}, "start": [0.0], "a": [[0.1]], "b": [[0.0]]}}}}"#,
+                k + 1
+            )
+        };
+        let texts: Vec<String> = (0..3).map(member).collect();
+        for (k, t) in texts.iter().enumerate() {
+            std::fs::write(dir.join(excitation_file(k)), t).unwrap();
+        }
+        let refused = |why: &str| {
+            let e = Sources::read(&urdf, dir).expect_err("refused").to_string();
+            assert!(e.contains(why), "{e}");
+        };
+        refused("no excitation-set.json: its writing was interrupted");
+        // A manifest of the first two: the third, left by an earlier set, is not read.
+        let set = serde_json::to_string(&ExcitationSet::of(&texts[..2])).unwrap();
+        std::fs::write(dir.join(SET), set).unwrap();
+        let read = Sources::read(&urdf, dir).expect("a set of two");
+        assert_eq!(read.excitations, texts[..2]);
+        std::fs::write(dir.join(excitation_file(1)), member(7)).unwrap();
+        refused("excitation-1.json: differs from the excitation excitation-set.json lists");
+    }
 
     /// A manifest written before the prior's revision was recorded reads as the first prior, so resuming it under
     /// this one is refused as another run rather than mixing two distributions of robots.

@@ -10,6 +10,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::flags::{FlagError, positive};
 
+/// Largest spread of any kind: a mass believed within a factor of e^3 (20) either way is no prior, and draws from
+/// a wider one are bodies no simulator steps (`generate --spread 100` failed every job).
+pub const MAX_SPREAD: f64 = 3.0;
+
 /// Relative spread per kind: masses, centres of mass, inertia tensors, joint friction.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(from = "Written", into = "Written")]
@@ -70,7 +74,7 @@ impl fmt::Display for Spread {
 }
 
 /// What `--spread` takes, for its errors.
-const FORMS: &str = "a positive number for every kind, or comma-separated kind=value (kinds: mass, com, inertia, \
+const FORMS: &str = "a positive number (at most 3) for every kind, or comma-separated kind=value (kinds: mass, com, inertia, \
                      friction) after an optional number for the rest, e.g. 0.3,com=0.1";
 
 impl FromStr for Spread {
@@ -79,18 +83,26 @@ impl FromStr for Spread {
     /// `0.3`, `0.3,com=0.1` or `mass=0.2,com=0.1,inertia=0.3,friction=0.3`.
     fn from_str(s: &str) -> Result<Self, FlagError> {
         let refuse = |what: String| FlagError::from(format!("{what}: expected {FORMS}").as_str());
+        let number = |text: &str, what: &str| match positive(text) {
+            Ok(v) if v <= MAX_SPREAD => Ok(v),
+            Ok(v) => Err(refuse(format!("{what}: {v} is more than {MAX_SPREAD}"))),
+            Err(e) => Err(refuse(format!("{what}: {e}"))),
+        };
         let mut kinds: [Option<f64>; 4] = [None; 4];
         let mut rest = None;
         for (k, item) in s.split(',').enumerate() {
             match item.split_once('=') {
-                None if k == 0 => rest = Some(positive(item).map_err(|e| refuse(format!("'{item}': {e}")))?),
+                None if k == 0 => rest = Some(number(item, &format!("'{item}'"))?),
                 None => return Err(refuse(format!("'{item}' names no kind"))),
                 Some((kind, value)) => {
                     let at = ["mass", "com", "inertia", "friction"]
                         .iter()
                         .position(|n| *n == kind.trim())
                         .ok_or_else(|| refuse(format!("'{kind}' is no kind")))?;
-                    kinds[at] = Some(positive(value).map_err(|e| refuse(format!("{kind}: {e}")))?);
+                    if kinds[at].is_some() {
+                        return Err(refuse(format!("'{kind}' is given twice")));
+                    }
+                    kinds[at] = Some(number(value, kind)?);
                 }
             }
         }
@@ -111,10 +123,13 @@ mod tests {
         let all: Spread = "mass=0.2,com=0.1,inertia=0.4,friction=0.5".parse().unwrap();
         assert_eq!(all, Spread { mass: 0.2, com: 0.1, inertia: 0.4, friction: 0.5 });
         assert_eq!(all.to_string().parse::<Spread>().unwrap(), all);
-        for bad in ["", "-1", "com=0.1", "0.3,size=0.1", "0.3,com=nan", "0.3,0.2", "0.3,com"] {
+        for bad in ["", "-1", "com=0.1", "0.3,size=0.1", "0.3,com=nan", "0.3,0.2", "0.3,com", "100", "0.3,com=1e9"] {
             let e = bad.parse::<Spread>().expect_err(bad).to_string();
             assert!(e.contains("expected a positive number"), "{bad}: {e}");
         }
+        let e = "0.3,com=0.1,com=0.2".parse::<Spread>().expect_err("a kind twice").to_string();
+        assert!(e.contains("'com' is given twice"), "{e}");
+        assert!("100".parse::<Spread>().expect_err("absurd").to_string().contains("100 is more than 3"));
     }
 
     /// A manifest written before the kinds could differ holds one number, and reads back as that number for every

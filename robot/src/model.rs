@@ -41,6 +41,14 @@ pub struct Friction {
     pub viscous: f64,
 }
 
+/// Largest effort [N m or N], speed [rad/s or m/s] and position [rad or m] limits taken as a joint's real ones: ten
+/// times and more the largest of any arm (a heavy-payload arm's base: ~50 kN m at ~2 rad/s; a linear axis: ~100 kN,
+/// a few m/s, tens of m). What lies beyond is a placeholder (1e308, 1e30, 1e10 for "none"), and a placeholder sizes
+/// the identification's priors, the excitation's scaling and the controller's gains to nonsense.
+pub const MAX_EFFORT: f64 = 1e6;
+pub const MAX_VELOCITY: f64 = 1e3;
+pub const MAX_POSITION: f64 = 1e3;
+
 /// Joint limits (URDF `<limit>`); a continuous joint has infinite position limits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Limits {
@@ -273,11 +281,20 @@ impl Model {
             if j.kind != JointKind::Continuous && !(l.lower < l.upper) {
                 return Err(bad(format!("limits lower {} / upper {} do not bound a range", l.lower, l.upper)));
             }
-            // Finite too: they size the identification's priors, the excitation's scaling and the controller's gains.
-            if !(l.effort > 0.0 && l.effort.is_finite() && l.velocity > 0.0 && l.velocity.is_finite()) {
+            // Finite and real too: they size the identification's priors, the excitation's scaling and the
+            // controller's gains.
+            if !(l.effort > 0.0 && l.effort <= MAX_EFFORT && l.velocity > 0.0 && l.velocity <= MAX_VELOCITY) {
                 return Err(bad(format!(
-                    "effort {} and velocity {} limits must be positive and finite (the joint's real limits)",
+                    "effort {} and velocity {} limits must be positive and finite, the joint's real limits (at most \
+                     {MAX_EFFORT:e} N m or N and {MAX_VELOCITY:e} rad/s or m/s)",
                     l.effort, l.velocity
+                )));
+            }
+            if j.kind != JointKind::Continuous && !(l.lower.abs() <= MAX_POSITION && l.upper.abs() <= MAX_POSITION) {
+                return Err(bad(format!(
+                    "limits lower {} / upper {} are no joint's range (at most {MAX_POSITION:e} rad or m either way; a \
+                     joint without position limits is `continuous`)",
+                    l.lower, l.upper
                 )));
             }
             let f = &j.friction;

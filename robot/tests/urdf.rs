@@ -132,6 +132,21 @@ fn malformed_urdfs_are_rejected_naming_file_and_element() {
         let (msg, p) = problem(&format!("<robot name='x'><link name='base'/>{l1}{unbounded}</robot>"));
         assert!(matches!(p, ModelProblem::InvalidJoint { ref joint, .. } if joint == "j0") && msg.contains("finite"));
     }
+    // So is a placeholder for none: 1e308 as an effort, a speed or a range.
+    let placeholders = [
+        ("effort=\"100\"", "effort=\"1e308\"", "real limits"),
+        ("velocity=\"5\"", "velocity=\"1e308\"", "real limits"),
+        ("lower=\"-3\" upper=\"3\"", "lower=\"-1e308\" upper=\"1e308\"", "no joint's range"),
+    ];
+    for (from, to, why) in placeholders {
+        let placeholder = j0.replace(from, to);
+        assert_ne!(placeholder, j0);
+        let (msg, p) = problem(&format!("<robot name='x'><link name='base'/>{l1}{placeholder}</robot>"));
+        assert!(
+            matches!(p, ModelProblem::InvalidJoint { ref joint, .. } if joint == "j0") && msg.contains(why),
+            "{msg}"
+        );
+    }
 
     // A number that is not one names its element and line (the XML reader's error names neither).
     let (msg, _) = problem(&format!(

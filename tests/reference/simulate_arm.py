@@ -10,6 +10,9 @@ stdin (JSON):
   friction        {joint: [coulomb, viscous]} for the joints that move (the others are held still)
   armature        optional: {joint: rotor inertia reflected through the gearbox} (MuJoCo's dof_armature; default 0)
   offset          optional: {joint: constant torque} added to the logged effort (a torque sensor's bias)
+  stribeck        optional: {joint: [torque, velocity]}: friction no Coulomb-viscous model holds, the Stribeck
+                  hump torque * exp(-(qd / velocity)^2) * tanh(qd / 0.02) opposing the motion on top of the joint's
+                  Coulomb and viscous friction (stiction above the sliding friction at low speed)
   seed            of the reference motion (multi-sines), and of the noise
   excitation      optional: an `excitation-K.json` of `dynforge excite` (a Fourier series per joint) as the reference
                   of the joints it names instead of multi-sines; the duration is its period
@@ -143,6 +146,15 @@ def simulate(req):
             refs[name] = (lambda v: (lambda t: (v, 0.0, 0.0)))(held)
     qadr = [m.jnt_qposadr[j] for j in range(m.njnt)]
     vadr = [m.jnt_dofadr[j] for j in range(m.njnt)]
+    stribeck = np.zeros((m.nv, 2))
+    stribeck[:, 1] = 1.0
+    for j, name in enumerate(joints):
+        if name in req.get("stribeck", {}):
+            stribeck[vadr[j]] = req["stribeck"][name]
+
+    def hump(qd):
+        return stribeck[:, 0] * np.exp(-((qd / stribeck[:, 1]) ** 2)) * np.tanh(qd / 0.02)
+
     for j, name in enumerate(joints):
         d.qpos[qadr[j]] = refs[name](0.0)[0]
     mujoco.mj_forward(m, d)
@@ -176,7 +188,7 @@ def simulate(req):
             log_tau.append([at_instant[vadr[j]] + offset.get(name, 0.0) for j, name in enumerate(joints)])
         if k == total_substeps:
             break
-        d.qfrc_applied[:] = tau
+        d.qfrc_applied[:] = tau - hump(d.qvel)
         applied = tau
         mujoco.mj_step(m, d)
     return m, joints, np.array(log_t), np.array(log_q), np.array(log_qd), np.array(log_tau)

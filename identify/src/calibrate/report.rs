@@ -140,6 +140,9 @@ pub struct JointEstimate {
     /// high-frequency scatter, through the conditioning), both relative to the torque's spread.
     pub nrmse: f64,
     pub noise_floor: f64,
+    /// The share of the residual's variance that is a function of the joint's velocity: near 1, friction the joint
+    /// model does not hold; near 0, noise or an error that depends on the rest of the motion.
+    pub velocity_share: f64,
 }
 
 /// A calibration of a URDF to logs.
@@ -165,6 +168,8 @@ pub struct Identification {
     pub joints: Vec<JointEstimate>,
     pub iterations: usize,
     pub converged: bool,
+    /// What the user must look at: joints whose torque the calibrated robot leaves far above its noise, and why.
+    pub warnings: Vec<String>,
     pub notes: Vec<String>,
     /// The least-squares estimate (base parameters, minimum norm): not a robot, a reference for torque prediction.
     #[serde(skip)]
@@ -187,6 +192,7 @@ pub(crate) struct Fitted<'a> {
     pub laplace: &'a DMatrix<f64>,
     pub noise: Vec<f64>,
     pub correlation: Vec<f64>,
+    pub velocity_share: Vec<f64>,
     pub convention: EffortConvention,
     pub logs: &'a [Log],
     /// What conditioning does to white effort noise ([`crate::signals::noise_gain`]).
@@ -252,7 +258,8 @@ impl Identification {
                 }
             })
             .collect();
-        // The drives' terms are their coordinates themselves.
+        // Friction and the drives' terms are their coordinates themselves.
+        let std = |k: usize| f.solution.covariance[(k, k)].sqrt();
         let drive = |j: usize, which: usize| x[drive_coordinate(n, j, which)];
         let drive_values: Vec<Drive> = (0..n).map(|j| Drive { armature: drive(j, 0), offset: drive(j, 1) }).collect();
         let pi = identified(&dynamic_parameters(&f.calibrated), &drive_values);
@@ -264,16 +271,11 @@ impl Identification {
                 let e = |which: usize| {
                     let k = friction_coordinate(n, j, which);
                     let at = friction_index(n, j) + which;
-                    Estimated::new(pi[at], f.solution.covariance[(k, k)].sqrt(), nominal[at], prior_cov[(k, k)].sqrt())
+                    Estimated::new(pi[at], std(k), nominal[at], prior_cov[(k, k)].sqrt())
                 };
                 let d = |which: usize| {
                     let k = drive_coordinate(n, j, which);
-                    Estimated::new(
-                        drive(j, which),
-                        f.solution.covariance[(k, k)].sqrt(),
-                        f.prior.mean[k],
-                        prior_cov[(k, k)].sqrt(),
-                    )
+                    Estimated::new(drive(j, which), std(k), f.prior.mean[k], prior_cov[(k, k)].sqrt())
                 };
                 JointEstimate {
                     name: f.model.joints()[j].name.clone(),
@@ -286,6 +288,7 @@ impl Identification {
                     correlation: f.correlation[j],
                     nrmse: nrmse[j],
                     noise_floor: floors[j],
+                    velocity_share: f.velocity_share[j],
                 }
             })
             .collect();
@@ -307,6 +310,7 @@ impl Identification {
             joints,
             iterations: f.solution.iterations,
             converged: f.solution.converged,
+            warnings: Vec::new(),
             notes: Vec::new(),
             least_squares: f.ls.pi.clone(),
             model: f.calibrated,
@@ -470,6 +474,9 @@ impl std::fmt::Display for Identification {
         }
         if !self.converged {
             writeln!(f, "warning: the search stopped after {} iterations without converging", self.iterations)?;
+        }
+        for w in &self.warnings {
+            writeln!(f, "warning: {w}")?;
         }
         for n in &self.notes {
             writeln!(f, "note: {n}")?;

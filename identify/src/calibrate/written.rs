@@ -59,13 +59,26 @@ pub fn calibrate_to_urdf(
     write_calibrated(id, &read, document, options, holdout, out)
 }
 
-/// An error if `out` is one of the inputs (a log, a held-out log, the URDF).
+/// An error if `out` is one of the inputs (a log, a held-out log, the URDF), or a held-out log is also one the
+/// calibration is made from (its score would be of data the fit saw, and read as a test).
 pub fn check_output(
     logs: &[PathBuf],
     document: Option<(&str, &str)>,
     holdout: &[PathBuf],
     out: &Path,
 ) -> Result<(), CalibrateError> {
+    use dynforge_proto::run_dir::resolve;
+    for held in holdout {
+        if let Some(log) = logs.iter().find(|l| resolve(l) == resolve(held)) {
+            return Err(CalibrateError::Read(dynforge_recording::ReadError::Content {
+                file: held.display().to_string(),
+                problem: format!(
+                    "held out and also calibrated from (as {}): a held-out score is of motion the fit did not see",
+                    log.display()
+                ),
+            }));
+        }
+    }
     let inputs: Vec<PathBuf> = logs.iter().chain(holdout).cloned().chain(document.map(|(_, s)| s.into())).collect();
     Ok(check_not_an_input(out, &inputs)?)
 }
