@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
-use dynforge_coordinator::run::GenerateConfig;
+use dynforge_coordinator::lock::LockError;
+use dynforge_coordinator::run::{GenerateConfig, GenerateError};
 use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration};
 use dynforge_identify::calibrate::{
     Calibrated, Identification, Kind, Options, check_output, check_ran, identify_logs, identify_read, write_calibrated,
@@ -129,7 +130,22 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         max_attempts: 3,
         worker_command: worker_command()?,
     };
-    execute(&cfg, &mut std::io::stderr()).with_context(|| format!("making the robot's family in {}", dir.display()))?;
+    if let Err(e) = execute(&cfg, &mut std::io::stderr()) {
+        // The family's directory is a run directory, and its lock names the command inside it ("generate"): said
+        // as what it is here, a family another process is making.
+        let busy = e.chain().find_map(|c| match c.downcast_ref::<GenerateError>() {
+            Some(GenerateError::Lock(LockError::Busy { holder, .. })) => Some(holder.process.clone()),
+            _ => None,
+        });
+        return Err(match busy {
+            Some(process) => anyhow::anyhow!(
+                "{}: the robot's family is being made by another process ({process}: a `calibrate` or `generate` of \
+                 the same URDF, excitations and settings); wait for it and run again, and the family is reused",
+                dir.display()
+            ),
+            None => e.context(format!("making the robot's family in {}", dir.display())),
+        });
+    }
 
     let variants = Options {
         conditioning: Conditioning {
@@ -202,14 +218,20 @@ fn family_spreads(
         bar.set_position(k as u64);
         // The family's shards are torque logs as dynforge writes them, whatever the user's logs are.
         let shards = Reading::welding(&options.reading.fixed);
-        let mut logs = read_logs(mine, document, &shards)?;
+        let damaged = || {
+            format!(
+                "a shard of the robot's family cannot be read: delete {} and run again (the family is made anew)",
+                dir.display()
+            )
+        };
+        let mut logs = read_logs(mine, document, &shards).with_context(damaged)?;
         for (k, log) in logs.iter_mut().enumerate() {
             degradation.apply(log, content_hash(format!("variant {r} log {k}").as_bytes()));
         }
         match identify_read(logs, options) {
             Ok((id, _)) => {
                 let mut truth: Identification = id.clone();
-                truth.report_values_of(&read_log(&mine[0], None, &shards)?.model);
+                truth.report_values_of(&read_log(&mine[0], None, &shards).with_context(damaged)?.model);
                 pairs.push((id, truth));
             }
             Err(e) => {

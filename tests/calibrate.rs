@@ -109,6 +109,29 @@ fn calibrate_writes_identifys_urdf_with_spreads_its_family_measured_and_reuses_t
         v.as_object_mut().unwrap().remove("logs");
     }
     assert_eq!(again, before);
+
+    // A family another process is making (its run directory's lock held) is said to be one, and nothing is written.
+    let family = PathBuf::from(c["family"]["dir"].as_str().unwrap());
+    let held = dynforge_proto::lock::RunLock::acquire(&family, std::time::Duration::ZERO, "generate").unwrap();
+    std::fs::remove_file(&cal).unwrap();
+    let busy = dynforge(&argv);
+    let err = String::from_utf8_lossy(&busy.stderr);
+    assert!(!busy.status.success() && err.contains("the robot's family is being made by another process"), "{err}");
+    assert!(!cal.exists(), "a refused calibrate writes nothing");
+    drop(held);
+    // A damaged shard of the cached family (its spreads to be measured again) names the directory to delete.
+    let shard = std::fs::read_dir(family.join("shards")).unwrap().next().unwrap().unwrap().path();
+    std::fs::write(&shard, b"damaged").unwrap();
+    for entry in std::fs::read_dir(&family).unwrap() {
+        let path = entry.unwrap().path();
+        if path.file_name().unwrap().to_str().unwrap().starts_with("spreads-") {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let damaged = dynforge(&argv);
+    let err = String::from_utf8_lossy(&damaged.stderr);
+    let delete = format!("delete {} and run again", family.display());
+    assert!(!damaged.status.success() && err.contains(&delete), "{err}");
 }
 
 /// Logs that did not run the excitations are refused before the family is made, naming the log or the excitation:

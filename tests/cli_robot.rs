@@ -87,6 +87,23 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     let out = dynforge(&["identify", log.to_str().unwrap(), again.to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(!out.status.success() && err.contains("twice.mcap: given twice (also as"), "{err}");
+    // A --cutoff at or above the log's Nyquist frequency is refused, naming both.
+    let tmp = tempfile::tempdir().unwrap();
+    let bag = tmp.path().join("one.mcap");
+    let model = generate(&GeneratorConfig::default(), 5, 1).unwrap().model;
+    let traj = dynforge_testkit::sinusoid_recording(&model, 0, 1e-3, 500);
+    dynforge_testkit::write_bag(&bag, &urdf::to_string(&model, &Default::default()), &traj);
+    let out = dynforge(&["identify", bag.to_str().unwrap(), "--cutoff", "600"]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    let said = "--cutoff 600 Hz is at or above the log's Nyquist frequency (500.0 Hz)";
+    assert!(!out.status.success() && err.contains(said), "{err}");
+    // A bag without joint states says so (not that the URDF has no moving joint).
+    let empty = tmp.path().join("empty.mcap");
+    let none = dynforge_recording::JointTrajectory { names: traj.names.clone(), ..Default::default() };
+    dynforge_testkit::write_bag(&empty, &urdf::to_string(&model, &Default::default()), &none);
+    let out = dynforge(&["identify", empty.to_str().unwrap()]);
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(!out.status.success() && err.contains("empty.mcap: no joint state in the file"), "{err}");
     // So is a held-out log that is one of the logs calibrated from, however spelt.
     let out = dynforge(&["identify", log.to_str().unwrap(), "--holdout", again.to_str().unwrap()]);
     let err = String::from_utf8(out.stderr).unwrap();

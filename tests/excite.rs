@@ -167,6 +167,9 @@ fn bad_requests_are_refused_naming_the_problem() {
     let o = dynforge(&["excite", "--urdf", urdf.to_str().unwrap(), "--out", out.to_str().unwrap(), "--start", "0.99"]);
     let e = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && e.contains("'j0'") && e.contains("not inside its range"), "{e}");
+    let o = dynforge(&["excite", "--urdf", urdf.to_str().unwrap(), "--out", out.to_str().unwrap(), "--fix", "j0=100"]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("'j0'") && e.contains("welded at 100, outside its range [-1, 1]"), "{e}");
     // Work without bound is refused before any is done, naming the flag.
     let (u, d) = (urdf.to_str().unwrap(), out.to_str().unwrap());
     let cases: [(&[&str], &str); 3] = [

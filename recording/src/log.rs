@@ -89,7 +89,10 @@ fn log_welded(
         (None, Some(text)) => (text.clone(), format!("{file} (/robot_description)")),
         (None, None) => return Err(content("no /robot_description in the file: give the robot's URDF".into())),
     };
-    let logged: Vec<String> = bag.joint_states.first().map(|m| m.name.to_vec()).unwrap_or_default();
+    let Some(first) = bag.joint_states.first() else {
+        return Err(content("no joint state in the file (a ROS 2 bag's /joint_states, sensor_msgs/JointState)".into()));
+    };
+    let logged: Vec<String> = first.name.to_vec();
     let movable = urdf::movable_joints(&document, &source).map_err(|e| content(e.to_string()))?;
     if let Some(f) = fixed.iter().find(|f| !movable.free.contains(f) && !movable.mimic.contains(f)) {
         return Err(content(format!("--fix {f}: the URDF has no moving joint '{f}'")));

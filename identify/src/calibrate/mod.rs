@@ -106,6 +106,11 @@ pub enum CalibrateError {
     #[error("{0}")]
     NotRun(String),
     #[error(
+        "{file}: --cutoff {cutoff} Hz is at or above the log's Nyquist frequency ({nyquist:.1} Hz): a low-pass filter \
+         there passes everything; give a lower one, or none (chosen from the positions' noise)"
+    )]
+    Cutoff { file: String, cutoff: f64, nyquist: f64 },
+    #[error(
         "{out}: not written: the search stopped after {iterations} iterations without converging, and its values are \
          not the optimum's. Record richer motion, check the URDF, or write it anyway with --accept-unconverged"
     )]
@@ -194,6 +199,10 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
         });
     }
     let fail = |source| CalibrateError::Identify { file: logs[0].name(), source };
+    let nyquist = 0.5 / logs[0].dt;
+    if let Some(cutoff) = options.conditioning.cutoff.filter(|&c| c >= nyquist) {
+        return Err(CalibrateError::Cutoff { file: logs[0].name(), cutoff, nyquist });
+    }
     let model = logs[0].model.clone();
     let (sums, velocity) = sum_rows(&logs, &options.conditioning).map_err(fail)?;
     check_effort_scale(&sums.equations(EffortConvention::Sampled), &model)?;

@@ -172,11 +172,25 @@ fn bad_number(text: &str) -> Option<String> {
     None
 }
 
+/// How far beyond its range (a share of it) a joint may be welded: a log's mean position of a joint held at its
+/// limit, with encoder noise, sits a hair outside.
+const WELD_SLACK: f64 = 0.01;
+
 fn build(robot: &urdf_rs::Robot, source_name: &str, welds: &Welds) -> Result<Model, ModelError> {
     let err = |problem| ModelError { source_name: source_name.to_string(), problem };
     check_unique_names(robot).map_err(err)?;
     if let Some(name) = welds.keys().find(|w| !robot.joints.iter().any(|j| &&j.name == w)) {
         return Err(err(ModelProblem::InvalidJoint { joint: name.clone(), reason: "no such joint to weld".into() }));
+    }
+    for j in robot.joints.iter().filter(|j| welds.contains_key(&j.name)) {
+        use urdf_rs::JointType::{Prismatic, Revolute};
+        let (q, (lower, upper)) = (welds[&j.name], (j.limit.lower, j.limit.upper));
+        // A log's mean position of a joint held at its limit may sit a hair beyond it (encoder noise).
+        let slack = WELD_SLACK * (upper - lower).abs();
+        if matches!(j.joint_type, Revolute | Prismatic) && !(q >= lower - slack && q <= upper + slack) {
+            let reason = format!("welded at {q}, outside its range [{lower}, {upper}]");
+            return Err(err(ModelProblem::InvalidJoint { joint: j.name.clone(), reason }));
+        }
     }
     let tree = Tree::of(robot).map_err(err)?;
     let (chain, _) = moving_chain(&tree, welds).map_err(err)?;
