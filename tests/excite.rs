@@ -172,7 +172,8 @@ fn bad_requests_are_refused_naming_the_problem() {
     assert!(!o.status.success() && e.contains("'j0'") && e.contains("welded at 100, outside its range [-1, 1]"), "{e}");
     // Work without bound is refused before any is done, naming the flag.
     let (u, d) = (urdf.to_str().unwrap(), out.to_str().unwrap());
-    let cases: [(&[&str], &str); 3] = [
+    let cases: [(&[&str], &str); 4] = [
+        (&["--duration", "0.001"], "past the 10 Hz an arm's joints follow: give a longer --duration"),
         (&["--rate", "1e9"], "give a lower --rate"),
         (&["--duration", "1e9"], "or a shorter --duration"),
         (&["--duration", "1e6", "--rate", "1"], "samples per trajectory at the design's 50 Hz"),

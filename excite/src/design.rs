@@ -417,6 +417,10 @@ struct Candidate {
     peaks: [f64; 4],
 }
 
+/// Highest harmonic a design may have [Hz]: past a geared arm's joint bandwidth (a few Hz), where a series would be
+/// scaled down to nothing by the acceleration and effort limits and identify nothing (a 1 ms `--duration`).
+pub const MAX_FREQUENCY: f64 = 10.0;
+
 /// Most samples of one trajectory the design evaluates (each candidate of the search samples it whole): about 5.5 h
 /// at its 50 Hz, past any excitation a robot runs and short of an unbounded search.
 pub const MAX_DESIGN_SAMPLES: f64 = 1e6;
@@ -435,6 +439,14 @@ fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
         return Err(ExciteError::Option(
             "need at least 2 harmonics, 1 trajectory, a positive duration and rate".into(),
         ));
+    }
+    let highest = options.harmonics as f64 / options.duration;
+    if highest > MAX_FREQUENCY {
+        return Err(ExciteError::Option(format!(
+            "{} harmonics over {} s put the highest at {highest:.3e} Hz, past the {MAX_FREQUENCY} Hz an arm's joints \
+             follow: give a longer --duration or fewer --harmonics",
+            options.harmonics, options.duration
+        )));
     }
     if options.duration * options.rate > MAX_DESIGN_SAMPLES {
         return Err(ExciteError::Option(format!(
