@@ -102,8 +102,13 @@ impl SelfCollision {
     }
 
     /// The distance between bodies `a` and `b` at `q` [m] (0 where they intersect).
-    fn distance(&self, model: &Model, data: &mut Data, q: &[f64], (a, b): (usize, usize)) -> f64 {
-        let at = self.placements(model, data, q);
+    fn distance(&self, model: &Model, data: &mut Data, q: &[f64], pair: (usize, usize)) -> f64 {
+        self.pair_distance(&self.placements(model, data, q), pair)
+    }
+
+    /// The distance between bodies `a` and `b` placed at `at` [m]. Unsupported shape pairs do not occur among
+    /// primitives and convex hulls; they count as touching (0).
+    fn pair_distance(&self, at: &[Vec<parry3d_f64::math::Pose>], (a, b): (usize, usize)) -> f64 {
         let each = self.bodies[a].iter().zip(&at[a]).flat_map(|(sa, pa)| {
             self.bodies[b]
                 .iter()
@@ -116,19 +121,7 @@ impl SelfCollision {
     /// The smallest distance between checked pairs at `q` [m], and the pair.
     pub fn clearance(&self, model: &Model, data: &mut Data, q: &[f64]) -> Option<(f64, (usize, usize))> {
         let at = self.placements(model, data, q);
-        let mut best: Option<(f64, (usize, usize))> = None;
-        for &(a, b) in &self.pairs {
-            for (sa, pa) in self.bodies[a].iter().zip(&at[a]) {
-                for (sb, pb) in self.bodies[b].iter().zip(&at[b]) {
-                    // Unsupported shape pairs do not occur among primitives and convex hulls; count them as touching.
-                    let d = distance(pa, sa.shape.as_ref(), pb, sb.shape.as_ref()).map_or(0.0, |d| d.distance);
-                    if best.is_none_or(|(m, _)| d < m) {
-                        best = Some((d, (a, b)));
-                    }
-                }
-            }
-        }
-        best
+        self.pairs.iter().map(|&p| (self.pair_distance(&at, p), p)).min_by(|x, y| x.0.total_cmp(&y.0))
     }
 
     /// Whether bodies `a` and `b` are closer than the clearance (touching when it is 0). Unsupported shape pairs do
