@@ -2,6 +2,7 @@
 //! excitations, which says nothing of a log of some other motion. Each excitation is looked for in every log, at
 //! every start, by its joints' positions.
 
+use dynforge_proto::family::excitation_file;
 use dynforge_proto::fourier::Excitation;
 use dynforge_recording::log::Log;
 
@@ -34,13 +35,13 @@ impl Ran {
     fn closest(&self) -> String {
         match self.error.is_finite() {
             true => format!(
-                "the closest is excitation-{}.json in {} from {:.2} s, off by {:.0} % of its motion",
-                self.excitation,
+                "the closest is {} in {} from {:.2} s, off by {:.0} % of its motion",
+                excitation_file(self.excitation),
                 self.log,
                 self.start,
                 100.0 * self.error
             ),
-            false => format!("{} has no stretch as long as excitation-{}.json", self.log, self.excitation),
+            false => format!("{} has no stretch as long as {}", self.log, excitation_file(self.excitation)),
         }
     }
 }
@@ -49,9 +50,9 @@ impl std::fmt::Display for Ran {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{}: ran excitation-{}.json from {:.2} s (positions off by {:.1} % of its motion; at most {:.0} % taken)",
+            "{}: ran {} from {:.2} s (positions off by {:.1} % of its motion; at most {:.0} % taken)",
             self.log,
-            self.excitation,
+            excitation_file(self.excitation),
             self.start,
             100.0 * self.error,
             100.0 * RAN_TOLERANCE
@@ -74,7 +75,8 @@ pub fn check_ran(logs: &[Log], excitations: &[Excitation]) -> Result<Vec<Ran>, C
             Some(r) if within(r) => {}
             nearest => {
                 return Err(CalibrateError::NotRun(format!(
-                    "no log ran excitation-{k}.json{}: give a log of the arm running every excitation of the set",
+                    "no log ran {}{}: give a log of the arm running every excitation of the set",
+                    excitation_file(k),
                     nearest.map_or(String::new(), |r| format!(" ({})", r.closest()))
                 )));
             }
@@ -103,8 +105,9 @@ fn closest(log: &Log, k: usize, e: &Excitation) -> Result<Ran, CalibrateError> {
         .map(|name| {
             names.iter().position(|n| n == name).ok_or_else(|| {
                 CalibrateError::NotRun(format!(
-                    "{}: the log has no joint '{name}', which excitation-{k}.json moves (its joints: {})",
+                    "{}: the log has no joint '{name}', which {} moves (its joints: {})",
                     log.name(),
+                    excitation_file(k),
                     names.join(", ")
                 ))
             })
