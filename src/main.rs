@@ -125,9 +125,26 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {}", chain(&e));
-            std::process::ExitCode::FAILURE
+            match interrupted(&e) {
+                // The shell's convention for a command a signal ended: 128 + the signal's number.
+                true => std::process::ExitCode::from(128 + libc::SIGINT as u8),
+                false => std::process::ExitCode::FAILURE,
+            }
         }
     }
+}
+
+/// Whether the command failed because Ctrl-C or SIGTERM stopped it (the commands that catch them end with an error
+/// that says where they stopped): scripts then tell a stopped run from a failed one by the exit status.
+fn interrupted(e: &anyhow::Error) -> bool {
+    use std::sync::atomic::Ordering;
+    dynforge_display::STOP.load(Ordering::Relaxed)
+        || e.chain().any(|c| {
+            matches!(
+                c.downcast_ref::<dynforge_coordinator::run::GenerateError>(),
+                Some(dynforge_coordinator::run::GenerateError::Interrupted { .. })
+            )
+        })
 }
 
 /// `cmd` with every option that takes a value taking `-1` as one: then the option's parser says what is wrong with

@@ -188,6 +188,44 @@ fn bad_requests_are_refused_naming_the_problem() {
     assert!(!out.exists(), "nothing written for a refused request");
 }
 
+/// A URDF named relative to the working directory finds its `package://` meshes above it, as an absolute path does
+/// (its parent was the empty path, which has no ancestors to search).
+#[test]
+fn a_relative_urdf_finds_its_package_meshes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let package = tmp.path().join("my_arm");
+    std::fs::create_dir_all(package.join("urdf")).unwrap();
+    std::fs::create_dir_all(package.join("meshes")).unwrap();
+    // A binary STL of one tetrahedron: 80-byte header, a count, 50 bytes per triangle.
+    let v = [[0.0f32, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.05, 0.0], [0.0, 0.0, 0.05]];
+    let mut stl = vec![0u8; 80];
+    stl.extend(4u32.to_le_bytes());
+    for t in [[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]] {
+        stl.extend([0u8; 12]);
+        t.iter().flat_map(|&k| v[k]).for_each(|x| stl.extend(x.to_le_bytes()));
+        stl.extend([0u8; 2]);
+    }
+    std::fs::write(package.join("meshes/part.stl"), stl).unwrap();
+    let mesh = r#"<collision><geometry><mesh filename="package://my_arm/meshes/part.stl"/></geometry></collision>"#;
+    let inertial =
+        r#"<inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>"#;
+    let urdf = format!(
+        r#"<robot name="two"><link name="base">{mesh}</link><link name="a">{inertial}{mesh}</link>
+           <joint name="j0" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>
+             <limit lower="-1" upper="1" effort="10" velocity="1"/></joint></robot>"#
+    );
+    std::fs::write(package.join("urdf/arm.urdf"), urdf).unwrap();
+    let out = tmp.path().join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_dynforge"))
+        .args(["excite", "--urdf", "arm.urdf", "--out", out.to_str().unwrap()])
+        .args(["--count", "1", "--duration", "2", "--evaluations", "5", "--harmonics", "2"])
+        .current_dir(package.join("urdf"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.join("excitation-0.json").exists());
+}
+
 /// An arm whose upper arm can swing down into its base column: the designed motion is free of self-collision by
 /// Pinocchio's and coal's account, row by row of the CSV, with the same geometry (primitives, so both check the
 /// same shapes); designed without the check, the same request drives the arm into its column.

@@ -139,6 +139,21 @@ fn a_family_dataset_is_reproducible_resumable_and_partitionable_and_refuses_othe
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("joint 'panda_finger_joint1' is prismatic"), "{err}");
     assert!(!other.exists(), "a refused family creates no directory");
+    // A URDF whose joint is slower than the excitations move it (they were designed for other limits): refused up
+    // front, naming the excitation and the joint, where every variant would be discarded.
+    let text = std::fs::read_to_string(&urdf).unwrap();
+    let joint = text.find("name=\"panda_joint2\"").unwrap();
+    let at = joint + text[joint..].find("velocity=\"").unwrap() + "velocity=\"".len();
+    let end = at + text[at..].find('"').unwrap();
+    let slow = tmp.path().join("slow.urdf");
+    std::fs::write(&slow, format!("{}0.01{}", &text[..at], &text[end..])).unwrap();
+    let o = dynforge(&family_args(slow.to_str().unwrap(), ex, &other, &["--workers", "1"]));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("excitation-0.json: joint 'panda_joint2' reaches speed") && err.contains("speed 0.01"),
+        "{err}"
+    );
+    assert!(!other.exists(), "a refused family creates no directory");
 }
 
 #[test]

@@ -186,6 +186,32 @@ fn currents_without_gains_are_refused_before_the_fit_and_with_them_identify_as_t
     assert!(!refused.status.success() && e.contains("effort is not the joint torque the URDF predicts"), "{e}");
     assert!(e.contains("predicts: joint 'shoulder_lift_joint' -") && e.contains("whose sign differs"), "{e}");
     assert!(!out.exists(), "a refused calibration writes nothing");
+    // A joint whose effort is zero throughout (a driver that fills the field, a map naming the wrong column): refused
+    // before the fit, naming the table and the joint, where the fit's normal equations would have failed.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let header = text.lines().next().unwrap();
+    let column = header.split(',').position(|c| c == "elbow_joint.effort").unwrap();
+    let zeroed: Vec<String> = text
+        .lines()
+        .skip(1)
+        .map(|row| {
+            let mut cells: Vec<&str> = row.split(',').collect();
+            cells[column] = "0.0";
+            cells.join(",")
+        })
+        .collect();
+    let silent = dir.join("silent.csv");
+    std::fs::write(&silent, format!("{header}\n{}\n", zeroed.join("\n"))).unwrap();
+    let (s, m) = (silent.to_str().unwrap(), map.to_str().unwrap());
+    let refused = dynforge(&["identify", s, "--urdf", n, "--gains", &gains, "--columns", m, "--out", o]);
+    let e = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && e.contains(&format!("{s}: the effort of elbow_joint is zero")), "{e}");
+    assert!(!out.exists(), "a refused calibration writes nothing");
+    // A weld of a joint that moves would put its motion's torques on the others: refused, naming it and its range.
+    let refused = dynforge(&["identify", mcap.to_str().unwrap(), "--urdf", n, "--fix", "elbow_joint", "--out", o]);
+    let e = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && e.contains("joint 'elbow_joint' is welded") && e.contains("moves"), "{e}");
+    assert!(!out.exists(), "a refused calibration writes nothing");
 }
 
 /// A logged velocity with 1 % noise (of each joint's velocity RMS), 1 % effort noise and 2^17-count encoders: the

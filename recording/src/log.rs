@@ -118,7 +118,14 @@ fn log_welded(
                 notes.push(format!("joint '{name}' is not in the log: welded at 0"));
             }
         } else if is_mimic || fixed.contains(name) {
-            let mean = mean_position(&bag, name).unwrap_or(0.0);
+            let (mean, range) = position_spread(&bag, name).unwrap_or((0.0, 0.0));
+            if !is_mimic && range > WELD_RANGE {
+                return Err(content(format!(
+                    "joint '{name}' is welded (--fix, or it moves too little to identify) but moves in the log over \
+                     {range:.3} (rad or m; a weld takes at most {WELD_RANGE}): its motion's torques would be put on \
+                     the other joints. Weld only a joint held still, or identify it"
+                )));
+            }
             match at.and_then(|w| w.get(name)) {
                 Some(&first) => {
                     welds.insert(name.clone(), first);
@@ -182,15 +189,20 @@ fn apply_gains(traj: &mut JointTrajectory, gains: &[f64]) -> Result<(), String> 
 /// How far (rad or m) a joint welded at the first log's position may sit from it in another log without a note.
 const WELD_TOLERANCE: f64 = 1e-3;
 
-/// The mean position of joint `name` over the messages that have it.
-fn mean_position(bag: &Bag, name: &str) -> Option<f64> {
+/// How far (rad or m) a welded joint may move in a log: a held joint's encoder jitter and a controller's sag are
+/// thousandths; a weld of a joint that moved further puts its own motion's torques on the others.
+pub const WELD_RANGE: f64 = 0.05;
+
+/// The mean position of joint `name` over the messages that have it, and its range (largest less smallest).
+fn position_spread(bag: &Bag, name: &str) -> Option<(f64, f64)> {
     let values: Vec<f64> = bag
         .joint_states
         .iter()
         .filter_map(|m| m.name.iter().position(|n| n == name).and_then(|c| m.position.get(c).copied()))
         .filter(|v| v.is_finite())
         .collect();
-    (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
+    let (lo, hi) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    (!values.is_empty()).then(|| (values.iter().sum::<f64>() / values.len() as f64, hi - lo))
 }
 
 /// The median sampling period of `traj` and its stretches between gaps, each on a uniform grid of that period

@@ -286,6 +286,13 @@ impl Bag {
 fn read_parts(bytes: &[u8], path: &Path) -> Result<Parts, ShardError> {
     let me = mcap_err(path);
     let content = |message: String| ShardError::Content { path: path.to_path_buf(), message };
+    if bytes.starts_with(mcap::MAGIC) && !bytes.ends_with(mcap::MAGIC) {
+        return Err(content(format!(
+            "an MCAP file cut short ({} bytes, no closing magic): a recording killed before it closed the file, or a \
+             partial copy. `mcap recover` (the MCAP command-line tool) rewrites the messages it holds as a whole file",
+            bytes.len()
+        )));
+    }
     let crc_checked = check_data_section(bytes).map_err(|e| content(e.to_string()))?;
     let summary = mcap::read::Summary::read(bytes).map_err(&me)?;
     let decoded = match summary.as_ref().filter(|s| !s.chunk_indexes.is_empty() && !top_level_messages(bytes)) {

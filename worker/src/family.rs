@@ -42,6 +42,11 @@ pub enum FamilySetupError {
     Engine { file: String, joint: String, why: &'static str, engine: &'static str },
     #[error("{file} moves joints {found:?}, the URDF (with its welds) has {expected:?}")]
     Joints { file: String, found: Vec<String>, expected: Vec<String> },
+    #[error(
+        "{file}: joint '{joint}' {reaches}, beyond the limit of the URDF {urdf} ({limit}): every variant would be \
+         discarded. The excitation was designed for other limits: design it for this URDF (`dynforge excite --urdf`)"
+    )]
+    Limits { file: String, joint: String, reaches: String, urdf: String, limit: String },
 }
 
 /// Excitation `t` then a hold at its start pose (where it ends).
@@ -70,6 +75,37 @@ impl Reference for Excited<'_> {
         self.series.at(t.min(self.series.period), &mut q, &mut qd, &mut qdd);
         [q, qd, qdd]
     }
+}
+
+/// Share of a joint's range (or speed limit) an excitation may pass it by: `excite` keeps a margin inside both, so
+/// more is an excitation designed for other limits.
+const LIMIT_SLACK: f64 = 0.01;
+
+/// The first joint of `model` that `series` takes beyond its position range or speed limit (by more than
+/// [`LIMIT_SLACK`]), sampled 64 times per period of its highest harmonic: its name, what it reaches and the limit.
+fn beyond_limits(model: &Model, series: &Fourier) -> Option<(String, String, String)> {
+    let n = series.joints();
+    let harmonics = series.a.iter().map(Vec::len).max().unwrap_or(1);
+    let samples = (64 * harmonics).max(2000);
+    let (mut lo, mut hi, mut fast) = (series.start.clone(), series.start.clone(), vec![0.0f64; n]);
+    let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    for i in 0..=samples {
+        series.at(series.period * i as f64 / samples as f64, &mut q, &mut qd, &mut qdd);
+        for j in 0..n {
+            (lo[j], hi[j], fast[j]) = (lo[j].min(q[j]), hi[j].max(q[j]), fast[j].max(qd[j].abs()));
+        }
+    }
+    model.joints().iter().enumerate().find_map(|(j, joint)| {
+        let l = &joint.limits;
+        let slack = LIMIT_SLACK * (l.upper - l.lower);
+        let bounded = l.upper > l.lower && l.upper - l.lower < 1e3;
+        if bounded && (lo[j] < l.lower - slack || hi[j] > l.upper + slack) {
+            let reaches = format!("moves over [{:.4}, {:.4}]", lo[j], hi[j]);
+            return Some((joint.name.clone(), reaches, format!("range [{}, {}]", l.lower, l.upper)));
+        }
+        (fast[j] > (1.0 + LIMIT_SLACK) * l.velocity)
+            .then(|| (joint.name.clone(), format!("reaches speed {:.4}", fast[j]), format!("speed {}", l.velocity)))
+    })
 }
 
 /// Position error [rad or m] at which a family's joint loop pushes through twice its expected Coulomb friction
@@ -134,6 +170,13 @@ impl FamilyRunner {
             if e.joints != expected {
                 let file = dir.join(dynforge_proto::family::excitation_file(k)).display().to_string();
                 return Err(FamilySetupError::Joints { file, found: e.joints.clone(), expected });
+            }
+        }
+        for (k, e) in excitations.iter().enumerate() {
+            if let Some((joint, reaches, limit)) = beyond_limits(&nominal, &e.series) {
+                let file = dir.join(dynforge_proto::family::excitation_file(k)).display().to_string();
+                let urdf = urdf.display().to_string();
+                return Err(FamilySetupError::Limits { file, joint, reaches, urdf, limit });
             }
         }
         let prior = CoordinatePrior::of(&nominal, family.spread)?;

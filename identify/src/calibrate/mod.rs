@@ -106,6 +106,11 @@ pub enum CalibrateError {
     #[error("{0}")]
     NotRun(String),
     #[error(
+        "{file}: the effort of {joints} is zero in every sample: the log holds no torque to calibrate from (does the \
+         driver publish effort? a column map may name the wrong column)"
+    )]
+    NoEffort { file: String, joints: String },
+    #[error(
         "{file}: --cutoff {cutoff} Hz is at or above the log's Nyquist frequency ({nyquist:.1} Hz): a low-pass filter \
          there passes everything; give a lower one, or none (chosen from the positions' noise)"
     )]
@@ -184,6 +189,16 @@ pub fn idle_joints(logs: &[Log]) -> std::collections::BTreeMap<String, usize> {
         .collect()
 }
 
+/// Joints of `log` whose effort is exactly zero in every sample, by name: a driver that fills the field with zeros,
+/// or a column map that points at the wrong column. No fit can take torques from them.
+pub fn silent_joints(log: &Log) -> Vec<&str> {
+    let n = log.model.dof();
+    (0..n)
+        .filter(|&j| log.segments.iter().all(|s| (0..s.len()).all(|i| s.tau[i * n + j] == 0.0)))
+        .map(|j| log.model.joints()[j].name.as_str())
+        .collect()
+}
+
 /// [`identify_logs`] of logs already read (and perhaps changed: a family's variants degraded as a bag is).
 pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identification, Vec<Log>), CalibrateError> {
     if logs.is_empty() {
@@ -197,6 +212,9 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
             ranges: still.values().map(|r| format!("{r:.1e}")).collect::<Vec<_>>().join(", "),
             fix: names.iter().map(|n| n.as_str()).collect::<Vec<_>>().join(" --fix "),
         });
+    }
+    if let Some((log, joints)) = logs.iter().map(|l| (l, silent_joints(l))).find(|(_, j)| !j.is_empty()) {
+        return Err(CalibrateError::NoEffort { file: log.name(), joints: joints.join(", ") });
     }
     let fail = |source| CalibrateError::Identify { file: logs[0].name(), source };
     let nyquist = 0.5 / logs[0].dt;

@@ -50,11 +50,7 @@ fn identify(log: Log) -> Result<String, String> {
     if idle.len() == n {
         return Err("no joint moves in the log: nothing to calibrate from".into());
     }
-    let silent: Vec<&str> = (0..n)
-        .filter(|&j| !idle.contains_key(&log.model.joints()[j].name))
-        .filter(|&j| log.segments.iter().all(|s| (0..s.len()).all(|i| s.tau[i * n + j] == 0.0)))
-        .map(|j| log.model.joints()[j].name.as_str())
-        .collect();
+    let silent: Vec<&str> = super::silent_joints(log).into_iter().filter(|name| !idle.contains_key(*name)).collect();
     if !silent.is_empty() {
         return Err(format!("the effort of {} is zero throughout: no torques to calibrate from", silent.join(", ")));
     }

@@ -21,7 +21,10 @@ impl MeshError {
 /// `ROS_PACKAGE_PATH` (`DIR/NAME/REST`) and `AMENT_PREFIX_PATH` (`PREFIX/share/NAME/REST`), and, for a description
 /// unpacked outside a workspace, in the URDF's own ancestors (a directory called NAME, or holding one).
 pub fn resolve(filename: &str, urdf: &Path) -> Result<PathBuf, MeshError> {
-    let here = urdf.parent().unwrap_or(Path::new("."));
+    // Absolute, so that the ancestors searched for a package go above the working directory too (a URDF named
+    // `ur5.urdf` has the empty path as its parent, and that has no ancestors).
+    let urdf = std::path::absolute(urdf).unwrap_or_else(|_| urdf.to_path_buf());
+    let here = urdf.parent().unwrap_or(Path::new("/"));
     if let Some(path) = filename.strip_prefix("file://") {
         return exists(PathBuf::from(path), filename);
     }

@@ -58,8 +58,37 @@ fn read(text: &str, source_name: &str) -> Result<urdf_rs::Robot, ModelError> {
     if nesting_exceeds(text, MAX_NESTING) {
         return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
     }
-    urdf_rs::read_from_string(text)
+    urdf_rs::read_from_string(&without_comments(text))
         .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))
+}
+
+/// `text` with its XML comments replaced by the line breaks they held (so that a parser's line numbers still point
+/// into the file). The URDF reader copies the document several times over as it parses: a 150 MB comment took
+/// 1.2 GB, the comment-free text takes what the robot's elements take.
+fn without_comments(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text.contains("<!--") {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len().min(1 << 20));
+    let mut rest = text;
+    loop {
+        // A CDATA section's text is not markup, comment marks in it included: copied as it is.
+        let (comment, cdata) = (rest.find("<!--"), rest.find("<![CDATA["));
+        let (start, close) = match (comment, cdata) {
+            (Some(c), Some(d)) if d < c => (d, "]]>"),
+            (Some(c), _) => (c, "-->"),
+            (None, _) => break,
+        };
+        let Some(end) = rest[start + 4..].find(close).map(|e| start + 4 + e + close.len()) else { break };
+        out.push_str(&rest[..start]);
+        match close {
+            "-->" => out.extend(rest[start..end].matches('\n')),
+            _ => out.push_str(&rest[start..end]),
+        }
+        rest = &rest[end..];
+    }
+    out.push_str(rest);
+    std::borrow::Cow::Owned(out)
 }
 
 /// The joints of the URDF `text` that can move, in document order: those that are degrees of freedom of their own
@@ -72,12 +101,7 @@ pub struct MovableJoints {
 
 /// The [`MovableJoints`] of the URDF `text`.
 pub fn movable_joints(text: &str, source_name: &str) -> Result<MovableJoints, ModelError> {
-    let err = |problem| ModelError { source_name: source_name.to_string(), problem };
-    if nesting_exceeds(text, MAX_NESTING) {
-        return Err(err(ModelProblem::TooDeep(MAX_NESTING)));
-    }
-    let robot = urdf_rs::read_from_string(text)
-        .map_err(|e| err(ModelProblem::Parse(bad_number(text).unwrap_or_else(|| e.to_string()))))?;
+    let robot = read(text, source_name)?;
     let names = |keep: &dyn Fn(&urdf_rs::Joint) -> bool| {
         robot.joints.iter().filter(|j| keep(j)).map(|j| j.name.clone()).collect()
     };

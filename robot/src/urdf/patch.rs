@@ -275,12 +275,18 @@ fn with_attributes(tag: &str, values: &[(&str, String)]) -> String {
 }
 
 /// `document` with `edits` (of disjoint ranges) made.
-fn apply(document: &str, mut edits: Vec<Edit>) -> String {
-    edits.sort_by_key(|(range, _)| std::cmp::Reverse(range.start));
-    let mut out = document.to_string();
-    for (range, text) in edits {
-        out.replace_range(range, &text);
+fn apply(document: &str, edits: Vec<Edit>) -> String {
+    // Edits at one place go in the reverse of their order (each inserted before the one made there before it).
+    let mut edits: Vec<(usize, Edit)> = edits.into_iter().enumerate().collect();
+    edits.sort_by_key(|(k, (range, _))| (range.start, std::cmp::Reverse(*k)));
+    let mut out = String::with_capacity(document.len() + edits.iter().map(|(_, (_, text))| text.len()).sum::<usize>());
+    let mut at = 0;
+    for (_, (range, text)) in edits {
+        out.push_str(&document[at..range.start]);
+        out.push_str(&text);
+        at = range.end;
     }
+    out.push_str(&document[at..]);
     out
 }
 
@@ -302,7 +308,7 @@ pub fn patch_welded(
     let err = |problem| ModelError { source_name: source.to_string(), problem };
     let original = parse_welded(document, source, welds)?;
     check_same_joints(&original, model).map_err(err)?;
-    let robot = urdf_rs::read_from_string(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
+    let robot = super::read(document, source)?;
     let elements = elements(document).map_err(|e| err(ModelProblem::Parse(e.to_string())))?;
     let doc = Document::new(&robot, &elements, welds);
     let mut edits: Vec<Edit> = Vec::new();
