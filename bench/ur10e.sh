@@ -5,9 +5,10 @@
 #
 # Identifies the four unloaded excitation logs that the repository's main.m names (trimmed to its index ranges), holds
 # out the point-to-point motion (rows 700-4200), and prints identify's tables, its held-out torque NRMSE beside the URDF
-# as given and least squares, its link masses beside UR's published ones, an independent least-squares reference
-# (bench/ur10e_least_squares.py: Pinocchio, its own filtering), and whether the 50 s log's identification and the other
-# three's agree within their spreads.
+# as given and least squares, its link masses beside UR's published ones, whether the 50 s log's identification and
+# the other three's agree within their spreads, and one independent held-out measure (bench/ur10e_least_squares.py:
+# Pinocchio, its own filtering) of identify's calibration, least squares, the repository's published parameters and
+# the URDF as given.
 #
 # Usage: bench/ur10e.sh CHECKOUT [OUT=bench/out/ur10e] [identify flags...]
 set -euo pipefail
@@ -50,9 +51,6 @@ logs=("$out"/ur-20_02_10-30sec_12harm.csv "$out"/ur-20_02_12-40sec_12harm.csv "$
 echo
 echo "UR's published masses [kg]: shoulder 7.369, upper arm 13.051, forearm 3.989, wrist 1 2.1, wrist 2 1.98, wrist 3 0.615"
 py=$(scripts/venv.sh)
-echo
-echo "independent least squares (Pinocchio regressor, rotor inertia, Coulomb, viscous, offset; its own filtering):"
-"$py" bench/ur10e_least_squares.py "$repo"
 
 # The 50 s log against the other three: do two identifications of one arm agree within their printed spreads?
 one() { "$bin/dynforge" identify "$@" --urdf "$repo/URe/urdf/ur10e.urdf" --columns "$out/ur10e.columns.toml" --json; }
@@ -109,3 +107,9 @@ for form in ["mcap", "db3"]:
     same = result(form) == csv
     print(f"{form} bag against the CSV tables: URDF and JSON {'byte-identical' if same else 'DIFFERENT'}")
 EOF
+
+# One independent measure for every model: identify's calibration (its URDF and JSON, four logs), least squares, the
+# repository's published parameters and the URDF as given, each scored by the Pinocchio script's own filtering.
+echo
+echo "independent held-out measure (bench/ur10e_least_squares.py: Pinocchio, its own filtering):"
+"$py" bench/ur10e_least_squares.py "$repo" --calibrated "$out/csv.urdf" "$out/csv.json"

@@ -33,9 +33,15 @@ against, so every step is spelled out:
      (equally, after column scaling), and we print both parts and the sum.
   5. Held-out NRMSE per joint = RMS(error)/std(measured torque), its mean over joints, and the pooled figure
      sqrt(sum of squared errors / sum_j n var_j), for (a) the full model, (b) the same without rotor inertia and offset
-     columns and (c) the URDF as given (its inertials via pinocchio.rnea, no friction, no rotor inertia).
+     columns, (c) the URDF as given (its inertials via pinocchio.rnea, no friction, no rotor inertia) and (d) the
+     repository's own published identification (UR10E_parameters.txt: pi_rgd, per link [Ixx Ixy Ixz Iyy Iyz Izz,
+     m c, m] about the link frame's origin, as its generate_rb_regressor.m orders them; pi_drvs, the rotor inertias;
+     pi_frcn, per joint [viscous, Coulomb, offset] as its linearFrictionModel.m) through the same regressor; with
+     --calibrated, (e) `dynforge identify`'s calibration: its URDF's inertials through pinocchio.rnea plus the JSON's
+     rotor inertia, Coulomb, viscous and offset per joint, Coulomb as in (a): one measure for all.
 
 Usage: python bench/ur10e_least_squares.py CHECKOUT_DIR [--cutoff HZ] [--coulomb-eps RAD_S] [--json FILE]
+                                            [--calibrated URDF JSON]
        (CHECKOUT_DIR contains dataset_ur10e/ and URe/urdf/ur10e.urdf)
 """
 import argparse
@@ -148,8 +154,42 @@ class Regressor:
             out[:, j, 60 + 4 * j:64 + 4 * j] = np.stack([qdd[:, j], coulomb[:, j], qd[:, j], np.ones(len(q))], 1)
         return out
 
-    def urdf_torque(self, q, qd, qdd):
-        return np.array([pin.rnea(self.model, self.data, *self.full_state(*s))[self.iv] for s in zip(q, qd, qdd)])
+    def urdf_torque(self, q, qd, qdd, model=None):
+        model = model or self.model
+        data = model.createData()
+        return np.array([pin.rnea(model, data, *self.full_state(*s))[self.iv] for s in zip(q, qd, qdd)])
+
+    def calibrated_torque(self, urdf, result, q, qd, qdd):
+        """`dynforge identify`'s prediction: the calibrated URDF's rigid bodies plus its JSON `result`'s drive terms."""
+        tau = self.urdf_torque(q, qd, qdd, pin.buildModelFromUrdf(urdf))
+        coulomb = np.tanh(qd / self.eps) if self.eps > 0 else np.sign(qd)
+        for joint in result["joints"]:
+            j = JOINTS.index(joint["name"])
+            value = {k: joint[k]["value"] for k in ("armature", "coulomb", "viscous", "offset")}
+            tau[:, j] += (value["armature"] * qdd[:, j] + value["coulomb"] * coulomb[:, j]
+                          + value["viscous"] * qd[:, j] + value["offset"])
+        return tau
+
+
+def published(checkout):
+    """The repository's published parameters (UR10E_parameters.txt) as this script's 84 columns, or None without
+    the file: per link Pinocchio's [m, mc, Ixx Ixy Iyy Ixz Iyz Izz], per joint [rotor inertia, Coulomb, viscous,
+    offset]."""
+    path = os.path.join(checkout, "UR10E_parameters.txt")
+    if not os.path.exists(path):
+        return None
+    values = {}
+    for line in open(path, encoding="utf-8"):
+        name, _, rest = line.partition("=")
+        if rest.strip().startswith("["):
+            values[name.strip()] = np.array([float(v) for v in rest.strip().strip("[]").split()])
+    x = np.zeros(84)
+    for k, link in enumerate(values["pi_rgd"].reshape(6, 10)):
+        ixx, ixy, ixz, iyy, iyz, izz, hx, hy, hz, m = link
+        x[10 * k:10 * k + 10] = [m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz]
+    for j, (viscous, coulomb, offset) in enumerate(values["pi_frcn"].reshape(6, 3)):
+        x[60 + 4 * j:64 + 4 * j] = [values["pi_drvs"][j], coulomb, viscous, offset]
+    return x
 
 
 def solve(A, b):
@@ -173,6 +213,8 @@ def main():
     ap.add_argument("--coulomb-eps", type=float, default=0.01,
                     help="Coulomb column tanh(qd/eps) [rad/s]; 0 for plain sign (default 0.01)")
     ap.add_argument("--json", help="write the numbers to this file")
+    ap.add_argument("--calibrated", nargs=2, metavar=("URDF", "JSON"),
+                    help="also score `dynforge identify`'s calibrated URDF and its --json output")
     args = ap.parse_args()
     reg = Regressor(os.path.join(args.checkout, "URe", "urdf", "ur10e.urdf"), args.coulomb_eps)
 
@@ -197,8 +239,16 @@ def main():
                "least_squares": nrmse(tau, R @ x_full),
                "least_squares_no_rotor_no_offset": nrmse(tau, R[:, :, reduced] @ x_red),
                "urdf": nrmse(tau, reg.urdf_torque(q, qd, qdd))}
+    x_published = published(args.checkout)
+    if x_published is not None:
+        results["published"] = nrmse(tau, R @ x_published)
+    if args.calibrated:
+        urdf, result = args.calibrated[0], json.load(open(args.calibrated[1]))
+        results["identify"] = nrmse(tau, reg.calibrated_torque(urdf, result, q, qd, qdd))
     print(f"\nheld-out NRMSE on {VALID[0]} ({len(q)} samples)      per joint 1..6                       mean  pooled")
-    for key in ("least_squares", "least_squares_no_rotor_no_offset", "urdf"):
+    for key in ("identify", "least_squares", "least_squares_no_rotor_no_offset", "published", "urdf"):
+        if key not in results:
+            continue
         r = results[key]
         print(f"  {key:34s} " + " ".join(f"{v:.3f}" for v in r["per_joint"]) + f"   {r['mean']:.3f}  {r['pooled']:.3f}")
 

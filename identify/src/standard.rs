@@ -18,6 +18,7 @@
 //! read directly: `m = e^(2a)`, the centre of mass is `t`, and `m V V^T` (`V` the upper 3x3 of `U / e^a`) is the
 //! second-moment matrix about the COM, so `d` are log radii of gyration.
 
+use dynforge_robot::spatial::Inertia;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 /// Coordinates per link.
@@ -32,24 +33,7 @@ pub const T: [usize; 3] = [7, 8, 9];
 /// The dynamic parameters `[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]` (inertia about the link origin;
 /// `dynforge_proto::params`) of the pseudo-inertia `j`.
 fn params_of(j: &Matrix4<f64>) -> [f64; COORDINATES] {
-    let sigma = j.fixed_view::<3, 3>(0, 0);
-    let trace = sigma.trace();
-    let i = |r: usize, c: usize| if r == c { trace - sigma[(r, c)] } else { -sigma[(r, c)] };
-    [j[(3, 3)], j[(0, 3)], j[(1, 3)], j[(2, 3)], i(0, 0), i(0, 1), i(1, 1), i(0, 2), i(1, 2), i(2, 2)]
-}
-
-/// The pseudo-inertia of dynamic parameters `p` (layout of [`params_of`]).
-fn pseudo_inertia(p: &[f64]) -> Matrix4<f64> {
-    let io = Matrix3::new(p[4], p[5], p[7], p[5], p[6], p[8], p[7], p[8], p[9]);
-    let sigma = Matrix3::identity() * (0.5 * io.trace()) - io;
-    let mut j = Matrix4::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&sigma);
-    for r in 0..3 {
-        j[(r, 3)] = p[1 + r];
-        j[(3, r)] = p[1 + r];
-    }
-    j[(3, 3)] = p[0];
-    j
+    Inertia::from_pseudo(j).to_params()
 }
 
 /// `U` of coordinates `theta`.
@@ -98,7 +82,7 @@ pub fn jacobian(theta: &[f64]) -> [[f64; COORDINATES]; COORDINATES] {
 /// The coordinates of dynamic parameters `p`, or `None` when they are no physical body (the pseudo-inertia is not
 /// positive definite). `U` is the "upper" Cholesky factor, that of the exchange-permuted pseudo-inertia.
 pub fn coordinates(p: &[f64]) -> Option<[f64; COORDINATES]> {
-    let j = pseudo_inertia(p);
+    let j = Inertia::from_params(p.try_into().ok()?).pseudo();
     let swap = |m: &Matrix4<f64>| Matrix4::from_fn(|r, c| m[(3 - r, 3 - c)]);
     let l = nalgebra::Cholesky::new(swap(&j))?.l();
     let u = swap(&l);

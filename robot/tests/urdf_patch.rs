@@ -127,17 +127,33 @@ fn a_patch_changes_only_inertials_and_dynamics_and_loads_as_the_estimate() {
     assert_eq!(urdf::patch(&text, "patched.urdf", &estimate).unwrap().0, text);
 }
 
+/// An estimate lighter than the tool welded to its link cannot be split: the tool keeps its `<inertial>` as written
+/// (the file changes only in the moving links' inertials), the link gets the nearest body, and a note says how far
+/// the file's total then is from the estimate.
 #[test]
-fn an_estimate_lighter_than_the_welded_tool_goes_whole_on_the_link() {
+fn an_estimate_lighter_than_the_welded_tool_keeps_the_tool_and_says_what_the_file_holds() {
     let doc = user_document();
     let original = urdf::parse(&doc, "user.urdf").unwrap();
     let estimate = target(&original, |name, v| if name == "mass_l6" { 0.2 } else { v });
     let (text, notes) = urdf::patch(&doc, "user.urdf", &estimate).unwrap();
     assert_eq!(notes.len(), 1, "{notes:?}");
-    assert!(notes[0].contains("link_6") && notes[0].contains("tool0"), "{notes:?}");
-    assert_same_parameters(&urdf::parse(&text, "patched.urdf").unwrap(), &estimate);
-    let tool = &text[text.find("<link name=\"tool0\">").unwrap()..];
-    assert!(!tool[..tool.find("</link>").unwrap()].contains("<inertial>"), "the tool's inertia would count twice");
+    assert!(notes[0].contains("link_6") && notes[0].contains("tool0") && notes[0].contains("nearest body"), "{notes:?}");
+    assert_eq!(kept(&text), kept(&doc), "something besides <inertial> and <dynamics> changed");
+    let tool = |d: &str| d[d.find("<link name=\"tool0\">").unwrap()..].split("</inertial>").next().unwrap().to_string();
+    assert_eq!(tool(&text), tool(&doc), "the tool's <inertial> changed");
+    let written = urdf::parse(&text, "patched.urdf").unwrap();
+    let link6 = written.links()[5].inertial;
+    // The link's own share is a physical body (the parse would refuse one that is not) and a light one: the nearest
+    // to a remainder of -0.1 kg, not a body of the tool's size. The file's total is the tool's 0.3 kg plus it.
+    let total = link6.mass;
+    assert!(total > 0.3 && total < 0.3 + 0.1, "{total}");
+    let said: f64 = notes[0].split("total for them is ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!((said - total).abs() < 1e-4, "the note says {said} kg, the file holds {total}");
+    // Every other link is the estimate's.
+    let (pw, pe) = (dynamic_parameters(&written), dynamic_parameters(&estimate));
+    for k in 0..50 {
+        assert!((pw[k] - pe[k]).abs() <= 1e-12 * pe[k].abs().max(1.0), "parameter {k}: {} vs {}", pw[k], pe[k]);
+    }
 }
 
 #[test]

@@ -1,6 +1,6 @@
 //! Rigid-body inertia ([`Inertia`]) in its 10 dynamic parameters.
 
-use nalgebra::{Matrix3, Matrix6, Vector3};
+use nalgebra::{Matrix3, Matrix4, Matrix6, SymmetricEigen, Vector3};
 
 use super::{Force, Motion, Se3, skew};
 
@@ -86,6 +86,39 @@ impl Inertia {
         let i_o = Matrix3::new(p[4], p[5], p[7], p[5], p[6], p[8], p[7], p[8], p[9]);
         Inertia { mass: p[0], h: Vector3::new(p[1], p[2], p[3]), i_o }
     }
+
+    /// The pseudo-inertia `J = [[Sigma, h], [h^T, m]]`, `Sigma = tr(I_o)/2 1 - I_o` the second moments of mass about
+    /// the origin: linear in the parameters, and positive definite exactly when they are a physical body (positive
+    /// mass, principal moments obeying the triangle inequalities strictly; Wensing, Kim, Slotine, RA-L 2017).
+    pub fn pseudo(&self) -> Matrix4<f64> {
+        let mut j = Matrix4::zeros();
+        j.fixed_view_mut::<3, 3>(0, 0).copy_from(&(Matrix3::identity() * (0.5 * self.i_o.trace()) - self.i_o));
+        j.fixed_view_mut::<3, 1>(0, 3).copy_from(&self.h);
+        j.fixed_view_mut::<1, 3>(3, 0).copy_from(&self.h.transpose());
+        j[(3, 3)] = self.mass;
+        j
+    }
+
+    /// Inverse of [`Inertia::pseudo`] (of any symmetric `j`).
+    pub fn from_pseudo(j: &Matrix4<f64>) -> Self {
+        let sigma = j.fixed_view::<3, 3>(0, 0).into_owned();
+        Inertia { mass: j[(3, 3)], h: j.fixed_view::<3, 1>(0, 3).into_owned(), i_o: Matrix3::identity() * sigma.trace() - sigma }
+    }
+
+    /// The physical body nearest to these parameters: the pseudo-inertia, its second moments taken in units of the
+    /// length `length` (so that all of it is in kilograms), with every eigenvalue raised to at least `floor` kg.
+    /// A body already that far inside physics is returned as it is.
+    pub fn nearest_body(&self, length: f64, floor: f64) -> Inertia {
+        let scale = |l: f64| Matrix4::from_diagonal(&nalgebra::Vector4::new(l, l, l, 1.0));
+        let s = scale(1.0 / length);
+        let eig = SymmetricEigen::new(s * self.pseudo() * s);
+        if eig.eigenvalues.iter().all(|&l| l >= floor) {
+            return *self;
+        }
+        let clipped = eig.eigenvalues.map(|l| l.max(floor));
+        let j = eig.eigenvectors * Matrix4::from_diagonal(&clipped) * eig.eigenvectors.transpose();
+        Inertia::from_pseudo(&(scale(length) * j * scale(length)))
+    }
 }
 
 impl std::ops::Add for Inertia {
@@ -101,6 +134,26 @@ mod tests {
 
     use crate::spatial::tests::sample_se3;
     use crate::spatial::{Inertia, Motion};
+
+    /// The pseudo-inertia round-trips, is positive definite for a body and not for a negative mass; the nearest body
+    /// to a non-physical inertia is physical, and a body well inside physics is its own nearest.
+    #[test]
+    fn the_nearest_body_of_a_non_physical_inertia_is_physical() {
+        let body = Inertia::from_com(
+            1.7,
+            Vector3::new(0.05, -0.1, 0.3),
+            Matrix3::new(0.2, 0.01, -0.02, 0.01, 0.3, 0.03, -0.02, 0.03, 0.25),
+        );
+        let back = Inertia::from_pseudo(&body.pseudo());
+        assert!((back.to_params().iter().zip(body.to_params()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)) < 1e-15);
+        assert!(body.pseudo().cholesky().is_some());
+        let negative = Inertia { mass: -0.1, ..body };
+        assert!(negative.pseudo().cholesky().is_none());
+        let near = negative.nearest_body(0.4, 1e-3);
+        assert!(crate::model::check_physical(&near).is_ok(), "{near:?}");
+        assert!(near.mass >= 1e-3 * 0.99, "{near:?}");
+        assert_eq!(body.nearest_body(0.4, 1e-6), body);
+    }
 
     #[test]
     fn inertia_transform_preserves_kinetic_energy_and_params_round_trip() {

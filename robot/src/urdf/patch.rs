@@ -196,45 +196,37 @@ impl<'a> Document<'a> {
     }
 
     /// The `<inertial>` to write on the moving link `name` for the estimate `estimate`, given the inertia `loaded`
-    /// that a loader gives the link (its own and its welded links'). When the estimate less the welded links is not
-    /// a body, the whole estimate, with a note and the edits that remove the welded links' inertia.
-    fn link_inertial(
-        &self,
-        name: &str,
-        loaded: &Inertial,
-        estimate: &Inertial,
-        edits: &mut Vec<Edit>,
-        notes: &mut Vec<String>,
-    ) -> Inertial {
+    /// that a loader gives the link (its own and its welded links'). The welded links keep theirs as the file states
+    /// them; when the estimate less theirs is not a body, the link gets the body nearest to it
+    /// ([`Inertia::nearest_body`]), with a note of what the file's total then differs from the estimate by.
+    fn link_inertial(&self, name: &str, loaded: &Inertial, estimate: &Inertial, notes: &mut Vec<String>) -> Inertial {
         let children = difference(&loaded.spatial(), &self.own_inertia(name));
         if children.mass <= 0.0 {
             return *estimate;
         }
-        let own = difference(&estimate.spatial(), &children);
-        match check_physical(&own) {
-            Ok(()) => without_residue(Inertial::from_spatial(&own)),
-            Err(why) => {
-                // The estimate cannot be split: it all goes on the link, and the welded links' inertia is removed
-                // so that no loader counts it twice.
-                let welded = self.welded_to(name);
-                notes.push(format!(
-                    "link '{name}': the estimate less its welded links ({}) is not a body ({why}); the whole \
-                     estimate is written on '{name}' and their <inertial> elements are removed",
-                    welded.join(", ")
-                ));
-                for w in &welded {
-                    if let Some(range) = self
-                        .find("link", w)
-                        .and_then(|e| e.children.iter().find(|(t, _)| t == "inertial").map(|(_, r)| r.clone()))
-                    {
-                        edits.push((range, String::new()));
-                    }
-                }
-                *estimate
-            }
-        }
+        let whole = estimate.spatial();
+        let own = difference(&whole, &children);
+        let Err(why) = check_physical(&own) else { return without_residue(Inertial::from_spatial(&own)) };
+        // Lengths in the estimate's own radius of gyration about the link origin, the floor a thousandth of its mass:
+        // a small body, but one every simulator takes.
+        let length = (whole.pseudo().fixed_view::<3, 3>(0, 0).trace() / whole.mass).sqrt().max(1e-3);
+        let near = own.nearest_body(length, NEAREST_FLOOR * whole.mass);
+        let written = near + children;
+        notes.push(format!(
+            "link '{name}': the estimate less its welded links ({}) is not a body ({why}); '{name}' gets the nearest \
+             body and the welded links keep their <inertial>, so the file's total for them is {:.4} kg where the \
+             estimate is {:.4} kg (centres of mass {:.4} m apart); the JSON and --mjcf hold the estimate",
+            self.welded_to(name).join(", "),
+            written.mass,
+            whole.mass,
+            (written.com() - whole.com()).norm(),
+        ));
+        without_residue(Inertial::from_spatial(&near))
     }
 }
+
+/// Smallest eigenvalue of a nearest body's scaled pseudo-inertia, as a share of the link's estimated mass.
+const NEAREST_FLOOR: f64 = 1e-3;
 
 /// That `document`'s model `original` has the moving joints of `model`, the robot estimated.
 fn check_same_joints(original: &Model, model: &Model) -> Result<(), ModelProblem> {
@@ -333,7 +325,7 @@ pub fn patch_welded(
         let name = &original.links()[k].name;
         let element = doc.find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
         let loaded = &original.links()[k].inertial;
-        let inertial = doc.link_inertial(name, loaded, &link.inertial, &mut edits, &mut notes);
+        let inertial = doc.link_inertial(name, loaded, &link.inertial, &mut notes);
         edits.extend(put(document, element, "inertial", |indent| inertial_xml(&inertial, indent)));
     }
     Ok((apply(document, edits), notes))
