@@ -52,7 +52,8 @@ echo
 echo "UR's published masses [kg]: shoulder 7.369, upper arm 13.051, forearm 3.989, wrist 1 2.1, wrist 2 1.98, wrist 3 0.615"
 py=$(scripts/venv.sh)
 
-# The 50 s log against the other three: do two identifications of one arm agree within their printed spreads?
+# The 50 s log against the other three: do two identifications of one arm agree within their printed spreads (friction
+# and offsets: their spreads over runs)?
 one() { "$bin/dynforge" identify "$@" --urdf "$repo/URe/urdf/ur10e.urdf" --columns "$out/ur10e.columns.toml" --json; }
 one "${logs[3]}" --out "$out/50s.urdf" > "$out/50s.json"
 one "${logs[@]:0:3}" --out "$out/three.urdf" > "$out/three.json"
@@ -73,7 +74,8 @@ apart = []
 for name, x in a.items():
     y = b[name]
     d = math.log(x["value"] / y["value"]) if x["scale"] == "log" else x["value"] - y["value"]
-    z = d / math.hypot(x["std"], y["std"])
+    # Friction and offsets over runs (the logs are runs of other days), the rest as the run's own.
+    z = d / math.hypot(x.get("over_runs", x["std"]), y.get("over_runs", y["std"]))
     if abs(z) > 2:
         apart.append(f"{name} ({z:+.1f})")
 print(f"50 s log against the other three: {len(a) - len(apart)} of {len(a)} parameters within two standard deviations "

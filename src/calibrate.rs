@@ -81,6 +81,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         // The family is made for the robot as --fix names it: a joint welded here and not there is two robots.
         weld_idle: false,
         accept_unconverged: args.accept_unconverged,
+        ..Options::default()
     };
 
     // The files first, then the bag: what cannot be used is refused before minutes of simulation. The URDF written

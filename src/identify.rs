@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use dynforge_identify::calibrate::{Calibrated, Options, calibrate_to_urdf, check_output};
+use dynforge_identify::calibrate::{Calibrated, Options, RUN_TO_RUN, calibrate_to_urdf, check_output};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::flags::positive;
 use dynforge_proto::spread::Spread;
@@ -34,8 +34,21 @@ pub struct IdentifyArgs {
     /// Write the calibration even when the search stopped before converging (its values are where it stopped).
     #[arg(long)]
     accept_unconverged: bool,
+    /// How far a joint's friction moves from one run of the arm to the next (temperature, lubricant), as a share of
+    /// its value (its offset: of its Coulomb friction); each log counts as a run. Gives friction and offsets a spread
+    /// over runs beside the one run's (0: none). The default is the real UR10e's measured scatter.
+    #[arg(long, value_name = "SHARE", default_value_t = RUN_TO_RUN, value_parser = share)]
+    run_to_run: f64,
     #[command(flatten)]
     output: Output,
+}
+
+/// A share: a finite number from 0 to 1.
+fn share(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err("expected a number from 0 to 1".into()),
+    }
 }
 
 /// Where a calibration goes (shared by `identify` and `calibrate`).
@@ -171,6 +184,7 @@ pub fn run(args: IdentifyArgs) -> Result<()> {
         reading: args.signals.reading(&args.fix)?,
         weld_idle: true,
         accept_unconverged: args.accept_unconverged,
+        run_to_run: args.run_to_run,
     };
     args.output.check_mjcf(&args.logs, document, &out)?;
     let mut calibrated = calibrate_to_urdf(&args.logs, document, &options, &args.output.holdout, &out)?;

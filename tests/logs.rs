@@ -84,6 +84,18 @@ fn a_humble_bag_and_a_table_identify_byte_for_byte_as_the_mcap_bag_of_the_same_m
     let from_csv = identify(&csv, &nominal, &dir.join("csv.urdf"), &["--columns", map.to_str().unwrap()]);
     let urdf = |name: &str| std::fs::read(dir.join(name)).unwrap();
     assert!(urdf("mcap.urdf") == urdf("db3.urdf") && urdf("mcap.urdf") == urdf("csv.urdf"), "the URDFs differ");
+    // Friction and offsets carry a spread over runs (one log: one run, moving them by 5 % of the friction's value);
+    // the links' parameters, which do not change between runs, none.
+    let elbow = joint(&from_mcap, "elbow_joint");
+    let coulomb = elbow["coulomb"]["value"].as_f64().unwrap().abs();
+    for (kind, scale) in
+        [("coulomb", coulomb), ("viscous", elbow["viscous"]["value"].as_f64().unwrap().abs()), ("offset", coulomb)]
+    {
+        let (std, runs) = (elbow[kind]["std"].as_f64().unwrap(), elbow[kind]["over_runs"].as_f64().unwrap());
+        let want = std.hypot(dynforge_identify::calibrate::RUN_TO_RUN * scale);
+        assert!((runs - want).abs() <= 1e-12 * want, "{kind}: over runs {runs}, want {want}");
+    }
+    assert!(elbow["armature"].get("over_runs").is_none() && from_mcap["links"][0]["mass"].get("over_runs").is_none());
     assert_eq!(from_mcap, from_db3);
     assert_eq!(from_mcap, from_csv);
     // The file of a split Humble recording too (its directory names it), and `info` reads both kinds.

@@ -85,7 +85,7 @@ fn arm_coverage(
             conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },
             reading: Reading::welding(&fixed),
             weld_idle: true,
-            accept_unconverged: false,
+            ..Options::default()
         };
         let mut zs = Zs::new();
         let mut failed = 0;
@@ -223,7 +223,7 @@ fn family_coverage(dir: &std::path::Path, case: &FamilyCase, dump: &mut Dump) ->
         conditioning: Conditioning { effort: Some(EffortConvention::Held), velocity, ..Conditioning::default() },
         reading: Reading::welding(fixed),
         weld_idle: true,
-        accept_unconverged: false,
+        ..Options::default()
     };
     let shards = shards_by_robot(dir)?;
     for (case, first_only) in [("first log", true), ("all logs", false)] {

@@ -137,7 +137,10 @@ fn an_estimate_lighter_than_the_welded_tool_keeps_the_tool_and_says_what_the_fil
     let estimate = target(&original, |name, v| if name == "mass_l6" { 0.2 } else { v });
     let (text, notes) = urdf::patch(&doc, "user.urdf", &estimate).unwrap();
     assert_eq!(notes.len(), 1, "{notes:?}");
-    assert!(notes[0].contains("link_6") && notes[0].contains("tool0") && notes[0].contains("nearest body"), "{notes:?}");
+    assert!(
+        notes[0].contains("link_6") && notes[0].contains("tool0") && notes[0].contains("nearest body"),
+        "{notes:?}"
+    );
     assert_eq!(kept(&text), kept(&doc), "something besides <inertial> and <dynamics> changed");
     let tool = |d: &str| d[d.find("<link name=\"tool0\">").unwrap()..].split("</inertial>").next().unwrap().to_string();
     assert_eq!(tool(&text), tool(&doc), "the tool's <inertial> changed");

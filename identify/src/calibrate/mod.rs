@@ -19,7 +19,7 @@ mod written;
 
 pub use ran::{RAN_TOLERANCE, Ran, check_ran};
 pub use readiness::{Readiness, TESTED_RATES};
-pub use report::{Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, Scale};
+pub use report::{Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, RUN_TO_RUN, Scale};
 pub use written::{Calibrated, HeldOut, calibrate_to_urdf, check_output, write_calibrated};
 
 use std::path::PathBuf;
@@ -62,6 +62,9 @@ pub struct Options {
     /// Whether a search that stopped before converging may still be written (its values are where it stopped, not
     /// the optimum, and its spreads are not the posterior's).
     pub accept_unconverged: bool,
+    /// How far friction moves between runs of the arm, as a share of its value ([`report::RUN_TO_RUN`]): the
+    /// friction's and offsets' spreads over runs ([`Identification::over_runs`]).
+    pub run_to_run: f64,
 }
 
 impl Default for Options {
@@ -72,6 +75,7 @@ impl Default for Options {
             reading: Reading::default(),
             weld_idle: true,
             accept_unconverged: false,
+            run_to_run: report::RUN_TO_RUN,
         }
     }
 }
@@ -231,6 +235,7 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
     id.effort_reason = effort_reason;
     id.notes.extend(logs.iter().flat_map(|l| l.notes.iter().map(|n| format!("{}: {n}", l.name()))));
     id.warnings = model_errors(&id);
+    id.over_runs(options.run_to_run, logs.len());
     Ok((id, logs))
 }
 

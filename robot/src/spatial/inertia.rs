@@ -102,7 +102,11 @@ impl Inertia {
     /// Inverse of [`Inertia::pseudo`] (of any symmetric `j`).
     pub fn from_pseudo(j: &Matrix4<f64>) -> Self {
         let sigma = j.fixed_view::<3, 3>(0, 0).into_owned();
-        Inertia { mass: j[(3, 3)], h: j.fixed_view::<3, 1>(0, 3).into_owned(), i_o: Matrix3::identity() * sigma.trace() - sigma }
+        Inertia {
+            mass: j[(3, 3)],
+            h: j.fixed_view::<3, 1>(0, 3).into_owned(),
+            i_o: Matrix3::identity() * sigma.trace() - sigma,
+        }
     }
 
     /// The physical body nearest to these parameters: the pseudo-inertia, its second moments taken in units of the
@@ -145,7 +149,9 @@ mod tests {
             Matrix3::new(0.2, 0.01, -0.02, 0.01, 0.3, 0.03, -0.02, 0.03, 0.25),
         );
         let back = Inertia::from_pseudo(&body.pseudo());
-        assert!((back.to_params().iter().zip(body.to_params()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)) < 1e-15);
+        assert!(
+            (back.to_params().iter().zip(body.to_params()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)) < 1e-15
+        );
         assert!(body.pseudo().cholesky().is_some());
         let negative = Inertia { mass: -0.1, ..body };
         assert!(negative.pseudo().cholesky().is_none());
