@@ -127,9 +127,9 @@ fn a_patch_changes_only_inertials_and_dynamics_and_loads_as_the_estimate() {
     assert_eq!(urdf::patch(&text, "patched.urdf", &estimate).unwrap().0, text);
 }
 
-/// An estimate lighter than the tool welded to its link cannot be split: the tool keeps its `<inertial>` as written
-/// (the file changes only in the moving links' inertials), the link gets the nearest body, and a note says how far
-/// the file's total then is from the estimate.
+/// An estimate lighter than the tool welded to its link cannot be split: in a user's file the tool keeps its
+/// `<inertial>` as written (the file changes only in the moving links' inertials), the link gets the nearest body, and
+/// a note says how far the file's total then is from the estimate.
 #[test]
 fn an_estimate_lighter_than_the_welded_tool_keeps_the_tool_and_says_what_the_file_holds() {
     let doc = user_document();
@@ -157,6 +157,14 @@ fn an_estimate_lighter_than_the_welded_tool_keeps_the_tool_and_says_what_the_fil
     for k in 0..50 {
         assert!((pw[k] - pe[k]).abs() <= 1e-12 * pe[k].abs().max(1.0), "parameter {k}: {} vs {}", pw[k], pe[k]);
     }
+    // A file that must be the model (a family's variant) takes the whole estimate on the link instead, the tool's
+    // <inertial> removed so that no loader counts it twice.
+    let welds = urdf::Welds::new();
+    let (text, notes) = urdf::patch_welded(&doc, "user.urdf", &estimate, &welds, urdf::Unsplit::Exact).unwrap();
+    assert!(notes.len() == 1 && notes[0].contains("whole estimate"), "{notes:?}");
+    assert_same_parameters(&urdf::parse(&text, "patched.urdf").unwrap(), &estimate);
+    let tool = &text[text.find("<link name=\"tool0\">").unwrap()..];
+    assert!(!tool[..tool.find("</link>").unwrap()].contains("<inertial>"), "the tool's inertia would count twice");
 }
 
 #[test]

@@ -20,7 +20,7 @@ use dynforge_proto::spread::Spread;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::spatial::Se3;
-use dynforge_robot::urdf::{Welds, parse_welded, patch_welded};
+use dynforge_robot::urdf::{Unsplit, Welds, parse_welded, patch_welded};
 use dynforge_robot::{Model, ModelError};
 use dynforge_shard::Metadata;
 use nalgebra::Vector3;
@@ -235,7 +235,7 @@ impl FamilyRunner {
             Ok(rec) => rec,
             Err(d) => return Ok(Outcome::Discarded(d)),
         };
-        let (urdf, _) = patch_welded(&self.urdf, dynforge_proto::family::URDF, &model, &self.welds)?;
+        let (urdf, _) = patch_welded(&self.urdf, dynforge_proto::family::URDF, &model, &self.welds, Unsplit::Exact)?;
         let metadata = self.metadata(job, sim, &model);
         write_shard(&out_dir.join(job.shard_name(sim.engine.name())), &model, &urdf, &rec, &metadata)
     }

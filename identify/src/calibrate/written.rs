@@ -97,7 +97,8 @@ pub fn write_calibrated(
         return Err(CalibrateError::NotConverged { out: out.display().to_string(), iterations: id.iterations });
     }
     let log = &read[0];
-    let (text, notes) = urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds)?;
+    let (text, notes) =
+        urdf::patch_welded(&log.document, &log.source, &id.model, &log.welds, urdf::Unsplit::KeepWelded)?;
     id.notes.extend(notes);
     write_atomic(out, text.as_bytes())
         .map_err(|source| CalibrateError::Write { file: out.display().to_string(), source })?;

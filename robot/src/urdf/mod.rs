@@ -9,7 +9,7 @@
 
 mod patch;
 
-pub use patch::{patch, patch_welded};
+pub use patch::{Unsplit, patch, patch_welded};
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::path::Path;

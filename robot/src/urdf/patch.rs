@@ -197,9 +197,15 @@ impl<'a> Document<'a> {
 
     /// The `<inertial>` to write on the moving link `name` for the estimate `estimate`, given the inertia `loaded`
     /// that a loader gives the link (its own and its welded links'). The welded links keep theirs as the file states
-    /// them; when the estimate less theirs is not a body, the link gets the body nearest to it
-    /// ([`Inertia::nearest_body`]), with a note of what the file's total then differs from the estimate by.
-    fn link_inertial(&self, name: &str, loaded: &Inertial, estimate: &Inertial, notes: &mut Vec<String>) -> Inertial {
+    /// them; when the estimate less theirs is not a body, `unsplit` decides.
+    fn link_inertial(
+        &self,
+        name: &str,
+        (loaded, estimate): (&Inertial, &Inertial),
+        unsplit: Unsplit,
+        edits: &mut Vec<Edit>,
+        notes: &mut Vec<String>,
+    ) -> Inertial {
         let children = difference(&loaded.spatial(), &self.own_inertia(name));
         if children.mass <= 0.0 {
             return *estimate;
@@ -207,22 +213,54 @@ impl<'a> Document<'a> {
         let whole = estimate.spatial();
         let own = difference(&whole, &children);
         let Err(why) = check_physical(&own) else { return without_residue(Inertial::from_spatial(&own)) };
-        // Lengths in the estimate's own radius of gyration about the link origin, the floor a thousandth of its mass:
-        // a small body, but one every simulator takes.
-        let length = (whole.pseudo().fixed_view::<3, 3>(0, 0).trace() / whole.mass).sqrt().max(1e-3);
-        let near = own.nearest_body(length, NEAREST_FLOOR * whole.mass);
-        let written = near + children;
-        notes.push(format!(
-            "link '{name}': the estimate less its welded links ({}) is not a body ({why}); '{name}' gets the nearest \
-             body and the welded links keep their <inertial>, so the file's total for them is {:.4} kg where the \
-             estimate is {:.4} kg (centres of mass {:.4} m apart); the JSON and --mjcf hold the estimate",
-            self.welded_to(name).join(", "),
-            written.mass,
-            whole.mass,
-            (written.com() - whole.com()).norm(),
-        ));
-        without_residue(Inertial::from_spatial(&near))
+        let welded = self.welded_to(name);
+        match unsplit {
+            Unsplit::Exact => {
+                notes.push(format!(
+                    "link '{name}': the estimate less its welded links ({}) is not a body ({why}); the whole \
+                     estimate is written on '{name}' and their <inertial> elements are removed",
+                    welded.join(", ")
+                ));
+                for w in &welded {
+                    let element = self.find("link", w);
+                    if let Some((_, range)) = element.and_then(|e| e.children.iter().find(|(t, _)| t == "inertial")) {
+                        edits.push((range.clone(), String::new()));
+                    }
+                }
+                *estimate
+            }
+            Unsplit::KeepWelded => {
+                // Lengths in the estimate's own radius of gyration about the link origin, the floor a thousandth of
+                // its mass: a small body, but one every simulator takes.
+                let length = (whole.pseudo().fixed_view::<3, 3>(0, 0).trace() / whole.mass).sqrt().max(1e-3);
+                let near = own.nearest_body(length, NEAREST_FLOOR * whole.mass);
+                let written = near + children;
+                notes.push(format!(
+                    "link '{name}': the estimate less its welded links ({}) is not a body ({why}); '{name}' gets the \
+                     nearest body and the welded links keep their <inertial>, so the file's total for them is {:.4} \
+                     kg where the estimate is {:.4} kg (centres of mass {:.4} m apart); the JSON and --mjcf hold the \
+                     estimate",
+                    welded.join(", "),
+                    written.mass,
+                    whole.mass,
+                    (written.com() - whole.com()).norm(),
+                ));
+                without_residue(Inertial::from_spatial(&near))
+            }
+        }
     }
+}
+
+/// How a patch writes an estimate that cannot be split between a moving link and the links welded to it (the
+/// estimate less the welded links' inertia is no physical body).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Unsplit {
+    /// The file's dynamics are the model's exactly: the whole estimate on the moving link, the welded links'
+    /// `<inertial>` removed. For files that must be the model (a family's variant, whose labels its URDF states).
+    Exact,
+    /// The user's file kept: the welded links keep their `<inertial>` (a tool's, a hand's from CAD), the moving link
+    /// gets the nearest body ([`Inertia::nearest_body`]), and a note says what the file's total then is.
+    KeepWelded,
 }
 
 /// Smallest eigenvalue of a nearest body's scaled pseudo-inertia, as a share of the link's estimated mass.
@@ -286,16 +324,17 @@ fn apply(document: &str, edits: Vec<Edit>) -> String {
 /// it, and notes on what could not be written as asked. Everything but the moving links' `<inertial>` and the moving
 /// joints' `<dynamics>` is kept as it was.
 pub fn patch(document: &str, source: &str, model: &Model) -> Result<(String, Vec<String>), ModelError> {
-    patch_welded(document, source, model, &Welds::new())
+    patch_welded(document, source, model, &Welds::new(), Unsplit::KeepWelded)
 }
 
 /// [`patch`] for a `model` read with the joints of `welds` welded ([`super::parse_welded`]): the links they carry
-/// keep their own inertia, as fixed ones do.
+/// keep their own inertia, as fixed ones do; an estimate that cannot be split is written as `unsplit` says.
 pub fn patch_welded(
     document: &str,
     source: &str,
     model: &Model,
     welds: &Welds,
+    unsplit: Unsplit,
 ) -> Result<(String, Vec<String>), ModelError> {
     let err = |problem| ModelError { source_name: source.to_string(), problem };
     let original = parse_welded(document, source, welds)?;
@@ -325,7 +364,7 @@ pub fn patch_welded(
         let name = &original.links()[k].name;
         let element = doc.find("link", name).ok_or_else(|| err(ModelProblem::Parse(format!("no link '{name}'"))))?;
         let loaded = &original.links()[k].inertial;
-        let inertial = doc.link_inertial(name, loaded, &link.inertial, &mut notes);
+        let inertial = doc.link_inertial(name, (loaded, &link.inertial), unsplit, &mut edits, &mut notes);
         edits.extend(put(document, element, "inertial", |indent| inertial_xml(&inertial, indent)));
     }
     Ok((apply(document, edits), notes))
