@@ -247,14 +247,7 @@ fn a_posterior_with_two_optima_is_reported_with_both() {
     let spread = Spread::uniform(0.5);
     let mut rng = dynforge_robot::rng::Rng::stream(7, &[9]);
     let nominal = CoordinatePrior::of(&truth.model, spread).unwrap().draw(&truth.model, || rng.normal()).unwrap();
-    let (text, _) = dynforge_robot::urdf::patch_welded(
-        &truth.document,
-        &truth.source,
-        &nominal,
-        &truth.welds,
-        dynforge_robot::urdf::Unsplit::Exact,
-    )
-    .unwrap();
+    let text = truth.urdf_of(&nominal).unwrap();
     let options = Options {
         spread,
         conditioning: Conditioning { effort: Some(EffortConvention::Held), ..Conditioning::default() },

@@ -155,13 +155,7 @@ fn arm_case(py: &str, s: &Settings, arm: &Arm, table: &mut Vec<String>) -> Resul
         if s.prior_draws {
             let mut rng = Rng::stream(11, &[i]);
             let drawn = prior.draw(&truth_log.model, || rng.normal())?;
-            let (text, _) = dynforge_robot::urdf::patch_welded(
-                &truth_log.document,
-                &truth_log.source,
-                &drawn,
-                &truth_log.welds,
-                dynforge_robot::urdf::Unsplit::Exact,
-            )?;
+            let text = truth_log.urdf_of(&drawn)?;
             std::fs::write(&nominal, text)?;
         } else {
             harness.run(

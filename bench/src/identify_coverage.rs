@@ -92,13 +92,7 @@ fn arm_coverage(
         for (i, log) in (0..nominals).zip(&logs) {
             let mut rng = Rng::stream(7, &[i]);
             let nominal = prior.draw(&truth.model, || rng.normal())?;
-            let (text, _) = dynforge_robot::urdf::patch_welded(
-                &truth.document,
-                &truth.source,
-                &nominal,
-                &truth.welds,
-                dynforge_robot::urdf::Unsplit::Exact,
-            )?;
+            let text = truth.urdf_of(&nominal)?;
             match identify_logs(std::slice::from_ref(log), Some((&text, "nominal.urdf")), &options) {
                 Ok((id, _)) => {
                     let mut at_truth = id.clone();

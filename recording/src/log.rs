@@ -44,6 +44,12 @@ pub struct Log {
 }
 
 impl Log {
+    /// The log's URDF with `model`'s parameters (a robot of the same joints, as read with the log's welds) written
+    /// in exactly: what a simulation of that robot, or a nominal drawn around it, is given.
+    pub fn urdf_of(&self, model: &Model) -> Result<String, dynforge_robot::ModelError> {
+        urdf::patch_welded(&self.document, &self.source, model, &self.welds, urdf::Unsplit::Exact).map(|(text, _)| text)
+    }
+
     /// Samples over all segments.
     pub fn samples(&self) -> usize {
         self.segments.iter().map(JointTrajectory::len).sum()
