@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
-use dynforge_identify::calibrate::{Calibrated, Options, RUN_TO_RUN, calibrate_to_urdf, check_output};
+use dynforge_identify::calibrate::{Calibrated, Options, RunToRun, calibrate_to_urdf, check_output};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
 use dynforge_proto::flags::positive;
 use dynforge_proto::spread::Spread;
@@ -36,18 +36,20 @@ pub struct IdentifyArgs {
     accept_unconverged: bool,
     /// How far a joint's friction moves from one run of the arm to the next (temperature, lubricant), as a share of
     /// its value (its offset: of its Coulomb friction); each log counts as a run. Gives friction and offsets a spread
-    /// over runs beside the one run's (0: none). The default is the real UR10e's measured scatter.
-    #[arg(long, value_name = "SHARE", default_value_t = RUN_TO_RUN, value_parser = share)]
-    run_to_run: f64,
+    /// over runs beside the one run's (0: none). `measured`: from the scatter between the logs, each identified alone
+    /// (several logs; one takes 0.05, the real UR10e's measured scatter).
+    #[arg(long, value_name = "SHARE|measured", default_value = "measured", value_parser = run_to_run)]
+    run_to_run: RunToRun,
     #[command(flatten)]
     output: Output,
 }
 
-/// A share: a finite number from 0 to 1.
-fn share(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
-        _ => Err("expected a number from 0 to 1".into()),
+/// `measured`, or a share: a finite number from 0 to 1.
+fn run_to_run(s: &str) -> Result<RunToRun, String> {
+    match (s.trim(), s.trim().parse::<f64>()) {
+        ("measured", _) => Ok(RunToRun::Measured),
+        (_, Ok(v)) if (0.0..=1.0).contains(&v) => Ok(RunToRun::Share(v)),
+        _ => Err("expected `measured` or a number from 0 to 1".into()),
     }
 }
 

@@ -19,7 +19,10 @@ mod written;
 
 pub use ran::{RAN_TOLERANCE, Ran, check_ran};
 pub use readiness::{Readiness, TESTED_RATES};
-pub use report::{Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, RUN_TO_RUN, Scale};
+pub use report::{
+    Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, RUN_TO_RUN, RunToRun, Scale,
+    measured_share,
+};
 pub use written::{Calibrated, HeldOut, calibrate_to_urdf, check_output, write_calibrated};
 
 use std::path::PathBuf;
@@ -62,9 +65,9 @@ pub struct Options {
     /// Whether a search that stopped before converging may still be written (its values are where it stopped, not
     /// the optimum, and its spreads are not the posterior's).
     pub accept_unconverged: bool,
-    /// How far friction moves between runs of the arm, as a share of its value ([`report::RUN_TO_RUN`]): the
-    /// friction's and offsets' spreads over runs ([`Identification::over_runs`]).
-    pub run_to_run: f64,
+    /// How far friction moves between runs of the arm, as a share of its value ([`report::RUN_TO_RUN`]), or
+    /// measured over the logs: the friction's and offsets' spreads over runs ([`Identification::over_runs`]).
+    pub run_to_run: RunToRun,
 }
 
 impl Default for Options {
@@ -75,7 +78,7 @@ impl Default for Options {
             reading: Reading::default(),
             weld_idle: true,
             accept_unconverged: false,
-            run_to_run: report::RUN_TO_RUN,
+            run_to_run: RunToRun::Share(report::RUN_TO_RUN),
         }
     }
 }
@@ -235,8 +238,46 @@ pub fn identify_read(logs: Vec<Log>, options: &Options) -> Result<(Identificatio
     id.effort_reason = effort_reason;
     id.notes.extend(logs.iter().flat_map(|l| l.notes.iter().map(|n| format!("{}: {n}", l.name()))));
     id.warnings = model_errors(&id);
-    id.over_runs(options.run_to_run, logs.len());
+    let share = match options.run_to_run {
+        RunToRun::Share(share) => share,
+        RunToRun::Measured => {
+            let (share, said) = run_to_run_of(&logs, options);
+            id.notes.push(said);
+            share
+        }
+    };
+    id.over_runs(share, logs.len());
     Ok((id, logs))
+}
+
+/// The run-to-run share of `logs`, each identified alone ([`measured_share`]), and what to say of it; with one log,
+/// or if a log cannot be identified alone, [`RUN_TO_RUN`].
+fn run_to_run_of(logs: &[Log], options: &Options) -> (f64, String) {
+    let default =
+        |why: String| (RUN_TO_RUN, format!("{why}: friction's spreads over runs take {RUN_TO_RUN} of its value"));
+    if logs.len() < 2 {
+        return default("one log".into());
+    }
+    let alone = Options { run_to_run: RunToRun::Share(0.0), ..options.clone() };
+    let mut runs = Vec::with_capacity(logs.len());
+    for log in logs {
+        match identify_read(vec![log.clone()], &alone) {
+            Ok((id, _)) => runs.push(id),
+            Err(e) => return default(format!("{} cannot be identified alone ({e})", log.name())),
+        }
+    }
+    match measured_share(&runs) {
+        Some(share) => (
+            share,
+            format!(
+                "friction moves by {:.1} % of its value between the {} logs (each identified alone, beyond its own \
+                 spreads): its spreads over runs take that",
+                100.0 * share,
+                logs.len()
+            ),
+        ),
+        None => default("no friction to measure".into()),
+    }
 }
 
 /// The rows of every segment of `logs`, conditioned, summed; with the velocity decided (from the first log, the

@@ -174,6 +174,8 @@ pub struct Identification {
     pub converged: bool,
     /// What the user must look at: joints whose torque the calibrated robot leaves far above its noise, and why.
     pub warnings: Vec<String>,
+    /// The share friction moves by between runs that the spreads over runs take ([`Identification::over_runs`]).
+    pub run_to_run: f64,
     pub notes: Vec<String>,
     /// The least-squares estimate (base parameters, minimum norm): not a robot, a reference for torque prediction.
     #[serde(skip)]
@@ -315,6 +317,7 @@ impl Identification {
             iterations: f.solution.iterations,
             converged: f.solution.converged,
             warnings: Vec::new(),
+            run_to_run: 0.0,
             notes: Vec::new(),
             least_squares: f.ls.pi.clone(),
             model: f.calibrated,
@@ -393,6 +396,39 @@ impl Identification {
 /// friction for the offsets (docs/measurements.md). An assumption for other arms: `--run-to-run`.
 pub const RUN_TO_RUN: f64 = 0.05;
 
+/// Where the run-to-run share comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RunToRun {
+    /// This share.
+    Share(f64),
+    /// Measured over the logs when there are several ([`measured_share`], each log identified alone), else
+    /// [`RUN_TO_RUN`].
+    Measured,
+}
+
+/// The share friction moves by between runs, from identifications of one run each: the root mean square, over every
+/// joint's Coulomb and viscous friction, of the scatter of their values beyond what their own spreads explain
+/// (`max(0, variance - mean std^2)`) over the value squared. `None` for fewer than two runs.
+pub fn measured_share(runs: &[Identification]) -> Option<f64> {
+    let k = runs.len();
+    if k < 2 {
+        return None;
+    }
+    let mut shares = Vec::new();
+    for j in 0..runs[0].joints.len() {
+        for pick in [|j: &JointEstimate| j.coulomb, |j: &JointEstimate| j.viscous] {
+            let estimates: Vec<Estimated> = runs.iter().map(|r| pick(&r.joints[j])).collect();
+            let mean = estimates.iter().map(|e| e.value).sum::<f64>() / k as f64;
+            let variance = estimates.iter().map(|e| (e.value - mean).powi(2)).sum::<f64>() / (k - 1) as f64;
+            let within = estimates.iter().map(|e| e.std * e.std).sum::<f64>() / k as f64;
+            if mean.abs() > 0.0 {
+                shares.push((variance - within).max(0.0) / (mean * mean));
+            }
+        }
+    }
+    (!shares.is_empty()).then(|| (shares.iter().sum::<f64>() / shares.len() as f64).sqrt())
+}
+
 impl Identification {
     /// Gives each joint's friction and offset its spread over runs, for logs that are `runs` runs of the arm each
     /// moving them by `share` (of the friction's value; of the Coulomb friction for the offset) independently: the
@@ -400,6 +436,7 @@ impl Identification {
     /// agree within these, where the one-run spreads (`std`) hold only for the same run's conditions. A share of 0
     /// gives none.
     pub fn over_runs(&mut self, share: f64, runs: usize) {
+        self.run_to_run = share;
         let runs = runs.max(1) as f64;
         for j in &mut self.joints {
             let (coulomb, viscous) = (j.coulomb.value.abs(), j.viscous.value.abs());
