@@ -117,11 +117,7 @@ impl Bounds {
         for (j, joint) in model.joints().iter().enumerate() {
             let l = &joint.limits;
             // A continuous joint (no range) turns within a full turn around its start.
-            let (lo, hi) = if l.upper > l.lower && (l.upper - l.lower) < 1e3 {
-                (l.lower, l.upper)
-            } else {
-                (-std::f64::consts::PI, std::f64::consts::PI)
-            };
+            let (lo, hi) = l.range().unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
             let margin = o.position_margin * (hi - lo);
             let start = o.start.as_ref().map_or(0.5 * (lo + hi), |s| s[j]);
             if !(start > lo + margin && start < hi - margin) {

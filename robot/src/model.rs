@@ -60,6 +60,14 @@ pub struct Limits {
     pub velocity: f64,
 }
 
+impl Limits {
+    /// The position interval the joint moves within, `None` for one without: a continuous joint's infinite limits,
+    /// limits out of order, or a range of a thousand (rad or m) or more, which no joint has.
+    pub fn range(&self) -> Option<(f64, f64)> {
+        (self.upper > self.lower && self.upper - self.lower < 1e3).then_some((self.lower, self.upper))
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum JointKind {
     Revolute,

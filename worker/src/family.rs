@@ -97,11 +97,12 @@ fn beyond_limits(model: &Model, series: &Fourier) -> Option<(String, String, Str
     }
     model.joints().iter().enumerate().find_map(|(j, joint)| {
         let l = &joint.limits;
-        let slack = LIMIT_SLACK * (l.upper - l.lower);
-        let bounded = l.upper > l.lower && l.upper - l.lower < 1e3;
-        if bounded && (lo[j] < l.lower - slack || hi[j] > l.upper + slack) {
-            let reaches = format!("moves over [{:.4}, {:.4}]", lo[j], hi[j]);
-            return Some((joint.name.clone(), reaches, format!("range [{}, {}]", l.lower, l.upper)));
+        if let Some((lower, upper)) = l.range() {
+            let slack = LIMIT_SLACK * (upper - lower);
+            if lo[j] < lower - slack || hi[j] > upper + slack {
+                let reaches = format!("moves over [{:.4}, {:.4}]", lo[j], hi[j]);
+                return Some((joint.name.clone(), reaches, format!("range [{lower}, {upper}]")));
+            }
         }
         (fast[j] > (1.0 + LIMIT_SLACK) * l.velocity)
             .then(|| (joint.name.clone(), format!("reaches speed {:.4}", fast[j]), format!("speed {}", l.velocity)))
