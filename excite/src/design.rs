@@ -1,14 +1,18 @@
 //! The search for excitations: per trajectory a (1+1) evolution strategy over the free Fourier coefficients, each
-//! candidate scaled into the limits before it is judged, judged by the D-optimality of all trajectories' information
-//! together (so the second trajectory excites what the first left weak).
+//! candidate scaled joint by joint into the limits before it is judged, judged by the D-optimality of all
+//! trajectories' information together (so the second trajectory excites what the first left weak) and, less, by its
+//! own. It starts from the best of several random series, and ends with what it is worth beside random multi-sines
+//! within the same limits and what a looser acceleration limit would buy.
 
+use dynforge_robot::Model;
 use dynforge_robot::rng::Rng;
-use dynforge_robot::{Data, Model, regressor};
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 
 use crate::ExciteError;
+use crate::baseline::{MultiSines, multisines};
 use crate::collision::SelfCollision;
-use crate::information::{Base, Quality, add_rows, scales};
+use crate::information::{Base, Quality};
+use crate::sampler::{Bounds, Candidate, Sampler};
 use crate::tours::tour_information;
 use dynforge_proto::fourier::Fourier;
 
@@ -56,14 +60,17 @@ impl Default for Options {
     }
 }
 
-/// A designed set of excitations, with the quality of each alone and of all together, and of the random start the
-/// search began from (a random multi-sine within the same limits: what the design is worth).
+/// A designed set of excitations, with the quality of each alone and of all together, beside what it is worth: random
+/// multi-sines within the same limits, the generator's tours, and the same design under a looser acceleration limit.
 #[derive(Debug, Clone)]
 pub struct Design {
     pub trajectories: Vec<Fourier>,
     pub alone: Vec<Quality>,
     pub together: Quality,
-    pub random_together: Quality,
+    /// Random multi-sines scaled joint by joint into the same bounds (`None` if too few fit the effort limits).
+    pub multisines: Option<MultiSines>,
+    /// The trajectories searched again under [`LOOSER`] times the acceleration limit, together.
+    pub looser: Quality,
     /// The dataset generator's waypoint tours on this robot for the same total duration, if waypoints were found.
     pub tours: Option<Quality>,
     /// Information of all trajectories together (scaled parameters), its base, and the scales.
@@ -87,210 +94,12 @@ pub struct Clearance {
     pub padding: f64,
 }
 
-/// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
-struct Bounds {
-    start: Vec<f64>,
-    lower: Vec<f64>,
-    upper: Vec<f64>,
-    speed: Vec<f64>,
-    acceleration: Vec<f64>,
-    effort: Vec<f64>,
-}
-
-impl Bounds {
-    fn new(model: &Model, o: &Options) -> Result<Self, ExciteError> {
-        let n = model.dof();
-        if !(o.acceleration.len() == 1 || o.acceleration.len() == n) {
-            return Err(ExciteError::Option(format!(
-                "{} acceleration limits given for {n} joints: give one for all or one per joint",
-                o.acceleration.len()
-            )));
-        }
-        let mut b = Bounds {
-            start: Vec::new(),
-            lower: Vec::new(),
-            upper: Vec::new(),
-            speed: Vec::new(),
-            acceleration: Vec::new(),
-            effort: Vec::new(),
-        };
-        for (j, joint) in model.joints().iter().enumerate() {
-            let l = &joint.limits;
-            // A continuous joint (no range) turns within a full turn around its start.
-            let (lo, hi) = l.range().unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
-            let margin = o.position_margin * (hi - lo);
-            let start = o.start.as_ref().map_or(0.5 * (lo + hi), |s| s[j]);
-            if !(start > lo + margin && start < hi - margin) {
-                return Err(ExciteError::Option(format!(
-                    "the start of joint '{}' ({start}) is not inside its range [{lo}, {hi}] less the margin",
-                    joint.name
-                )));
-            }
-            if !(l.velocity > 0.0 && l.effort > 0.0) {
-                return Err(ExciteError::Option(format!(
-                    "joint '{}' states no velocity or effort limit (velocity {}, effort {}): the URDF must give both",
-                    joint.name, l.velocity, l.effort
-                )));
-            }
-            b.start.push(start);
-            b.lower.push(lo + margin);
-            b.upper.push(hi - margin);
-            b.speed.push(o.velocity_share * l.velocity);
-            b.acceleration.push(if o.acceleration.len() == 1 { o.acceleration[0] } else { o.acceleration[j] });
-            b.effort.push(o.effort_share * l.effort);
-        }
-        if let Some(a) = b.acceleration.iter().find(|a| a.is_nan() || **a <= 0.0) {
-            return Err(ExciteError::Option(format!("acceleration limit {a} is not positive")));
-        }
-        Ok(b)
-    }
-}
-
-/// Samples one trajectory: its information (scaled) and its peaks as shares of the bounds (position, velocity,
-/// acceleration, effort). The effort is the URDF's own inverse dynamics with its friction.
-struct Sampler<'a> {
-    model: &'a Model,
-    bounds: &'a Bounds,
-    scales: DVector<f64>,
-    nominal: DVector<f64>,
-    samples: usize,
-    data: Data,
-    collision: Option<&'a SelfCollision>,
-    /// The series' period and harmonics.
-    period: f64,
-    harmonics: usize,
-}
-
-impl Sampler<'_> {
-    fn sample(&mut self, f: &Fourier, information: bool) -> (DMatrix<f64>, [f64; 4]) {
-        let n = self.model.dof();
-        let p = self.scales.len();
-        let mut w = DMatrix::zeros(if information { p } else { 0 }, if information { p } else { 0 });
-        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        let mut peaks = [0.0f64; 4];
-        let b = self.bounds;
-        for k in 0..self.samples {
-            let t = f.period * k as f64 / self.samples as f64;
-            f.at(t, &mut q, &mut qd, &mut qdd);
-            let y = regressor(self.model, &mut self.data, &q, &qd, &qdd);
-            let tau = y * &self.nominal;
-            for j in 0..n {
-                let d = q[j] - b.start[j];
-                let room = if d >= 0.0 { b.upper[j] - b.start[j] } else { b.start[j] - b.lower[j] };
-                peaks[0] = peaks[0].max(d.abs() / room);
-                peaks[1] = peaks[1].max(qd[j].abs() / b.speed[j]);
-                peaks[2] = peaks[2].max(qdd[j].abs() / b.acceleration[j]);
-                peaks[3] = peaks[3].max(tau[j].abs() / b.effort[j]);
-            }
-            if information {
-                add_rows(&mut w, y, &self.scales);
-            }
-        }
-        (w, peaks)
-    }
-
-    /// The first pair of bodies in contact along `f` at this sampler's rate, if any (none when collisions are not
-    /// checked).
-    fn contact(&mut self, f: &Fourier) -> Option<(usize, usize)> {
-        let c = self.collision?;
-        let n = self.model.dof();
-        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        (0..self.samples).find_map(|k| {
-            f.at(f.period * k as f64 / self.samples as f64, &mut q, &mut qd, &mut qdd);
-            c.first_contact(self.model, &mut self.data, &q)
-        })
-    }
-
-    /// `c`, or `c` shrunk towards the start pose (by steps of a fifth, at most 8) until no checked bodies touch
-    /// along it; `Err` with the last pair in contact (`None`: the shrunk motion left the bounds).
-    fn free(&mut self, mut c: Candidate) -> Result<Candidate, Option<(usize, usize)>> {
-        let mut contact = None;
-        for _ in 0..8 {
-            contact = self.contact(&self.series(&c.x));
-            if contact.is_none() {
-                return Ok(c);
-            }
-            let x: Vec<f64> = c.x.iter().map(|v| 0.8 * v).collect();
-            let (information, peaks) = self.sample(&self.series(&x), true);
-            if peaks.iter().any(|&p| p > 1.0 + 1e-9) {
-                return Err(None);
-            }
-            c = Candidate { x, information, peaks };
-        }
-        Err(contact)
-    }
-
-    /// The series of free coefficients `x`.
-    fn series(&self, x: &[f64]) -> Fourier {
-        Fourier::from_free(self.period, &self.bounds.start, self.harmonics, x)
-    }
-
-    /// `c` shrunk by steps of 1 % (at most 50) until, at this sampler's rate, its effort keeps the bounds and no
-    /// checked bodies touch (a motion that grazes a body between coarser samples is shrunk off it); its peaks at
-    /// this rate.
-    fn settle(&mut self, c: &mut Candidate) -> Result<(), ExciteError> {
-        for _ in 0..50 {
-            let f = self.series(&c.x);
-            if self.sample(&f, false).1[3] <= 1.0 && self.contact(&f).is_none() {
-                break;
-            }
-            c.x.iter_mut().for_each(|v| *v *= 0.99);
-        }
-        let f = self.series(&c.x);
-        c.peaks = self.sample(&f, false).1;
-        if c.peaks[3] > 1.0 {
-            return Err(ExciteError::Infeasible);
-        }
-        match (self.contact(&f), self.collision) {
-            (Some(pair), Some(check)) => Err(ExciteError::Collision(check.describe(pair))),
-            _ => Ok(()),
-        }
-    }
-
-    /// The smallest distance between `check`'s pairs along `f` at this sampler's rate, and the pair's names.
-    fn clearance(&mut self, check: &SelfCollision, f: &Fourier) -> (f64, String) {
-        let n = self.model.dof();
-        let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-        let mut best = (f64::INFINITY, String::from("no pair checked"));
-        for k in 0..self.samples {
-            f.at(f.period * k as f64 / self.samples as f64, &mut q, &mut qd, &mut qdd);
-            if let Some((d, pair)) = check.clearance(self.model, &mut self.data, &q)
-                && d < best.0
-            {
-                best = (d, check.describe(pair));
-            }
-        }
-        best
-    }
-
-    /// The series of free coefficients `x` scaled so that it keeps every bound (kinematic peaks scale with the
-    /// coefficients; the effort, with gravity in it, does not: it is shrunk by steps until it fits), with its
-    /// information and peaks; `None` when even a tenth of it would not fit (the pose alone needs more effort).
-    fn fit(&mut self, x: &[f64]) -> Option<Candidate> {
-        let (_, peaks) = self.sample(&self.series(x), false);
-        // Between samples a trigonometric polynomial of degree N sampled M > 2N times per period rises at most by
-        // sec(pi N / M) over its largest sample (Ehlich and Zeller, 1964): so the kinematic bounds hold at every
-        // instant, not only at the samples.
-        let between = 1.0 / (std::f64::consts::PI * self.harmonics as f64 / self.samples as f64).cos();
-        let kinematic = peaks[0].max(peaks[1]).max(peaks[2]) * between;
-        if !(kinematic > 0.0 && kinematic.is_finite()) {
-            return None;
-        }
-        let mut scale = 1.0 / kinematic;
-        for _ in 0..24 {
-            let xs: Vec<f64> = x.iter().map(|v| v * scale).collect();
-            let (w, peaks) = self.sample(&self.series(&xs), true);
-            if peaks.iter().all(|&p| p <= 1.0 + 1e-9) {
-                return Some(Candidate { x: xs, information: w, peaks });
-            }
-            scale *= 0.9;
-        }
-        None
-    }
-}
-
 /// Rate [Hz] the final trajectories' efforts are checked at.
 const DENSE_RATE: f64 = 1000.0;
+
+/// The factor on the acceleration limit the report prices: what the design would gain were the limit this much
+/// looser.
+pub const LOOSER: f64 = 2.0;
 
 /// The pose every trajectory of `options` starts and ends at.
 pub fn start_pose(model: &Model, options: &Options) -> Result<Vec<f64>, ExciteError> {
@@ -313,50 +122,34 @@ pub fn design_with(
 ) -> Result<Design, ExciteError> {
     check(model, options)?;
     let bounds = Bounds::new(model, options)?;
-    let scales = scales(model);
-    let nominal = DVector::from_vec(dynforge_robot::parameters::dynamic_parameters(model));
-    let samples = (options.duration * options.rate).ceil().max(2.0 * options.harmonics as f64 + 2.0) as usize;
-    let mut sampler = Sampler {
-        model,
-        bounds: &bounds,
-        scales: DVector::from_vec(scales.clone()),
-        nominal,
-        samples,
-        data: Data::new(model),
-        collision,
-        period: options.duration,
-        harmonics: options.harmonics,
-    };
+    let mut sampler = Sampler::new(model, &bounds, collision, options, options.rate);
+    let scales: Vec<f64> = sampler.scales.iter().copied().collect();
     let p = scales.len();
     let sum = |c: &[Candidate]| c.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
     let mut current = random_starts(&mut sampler, options)?;
-    let random_information = sum(&current);
-    let base = Base::of(&random_information);
-    let random_together = Quality::of(&base, &random_information);
+    let base = Base::of(&sum(&current));
 
     // Each trajectory in turn improves the set's D-optimality with the others held.
+    let (searched, priced) =
+        (options.count * options.evaluations, options.count * (options.evaluations / LOOSER_SHARE));
     for k in 0..options.count {
         let others = sum(&current) - &current[k].information;
         let mut rng = Rng::stream(options.seed, &[k as u64, 1]);
-        let report = |e: usize| progress(k * options.evaluations + e, options.count * options.evaluations);
-        current[k] = improve(&mut sampler, options, &base, &others, current[k].clone(), &mut rng, report);
+        let report = |e: usize| progress(k * options.evaluations + e, searched + priced);
+        current[k] = improve(&mut sampler, options.evaluations, &base, &others, current[k].clone(), &mut rng, report);
     }
     // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at), and so is
     // self-collision: a point of the arm moves millimetres between samples there, so what passes there passes in
     // between.
-    let mut dense = Sampler {
-        samples: (options.duration * DENSE_RATE).ceil() as usize,
-        data: Data::new(model),
-        scales: sampler.scales.clone(),
-        nominal: sampler.nominal.clone(),
-        ..sampler
-    };
+    let mut dense = Sampler::new(model, &bounds, collision, options, DENSE_RATE);
     for c in current.iter_mut() {
         dense.settle(c)?;
         let f = sampler.series(&c.x);
         c.information = sampler.sample(&f, true).0;
     }
     let information = sum(&current);
+    let multisines = multisines(&mut sampler, &base, options.count, options.seed);
+    let looser = looser(model, collision, options, &base, &current, |e| progress(searched + e, searched + priced))?;
     let clearance = collision.map(|check| {
         let closest = current.iter().map(|c| sampler.clearance(check, &sampler.series(&c.x))).collect();
         Clearance { closest, pairs: check.pairs(), padding: check.padding() }
@@ -374,7 +167,8 @@ pub fn design_with(
         clearance,
         alone: current.iter().map(|c| Quality::of(&base, &c.information)).collect(),
         together: Quality::of(&base, &information),
-        random_together,
+        multisines,
+        looser,
         peaks: current.iter().map(|c| c.peaks).collect(),
         trajectories: current.iter().map(|c| sampler.series(&c.x)).collect(),
         information,
@@ -383,34 +177,75 @@ pub fn design_with(
     })
 }
 
-/// Random starts, one per trajectory, fitted into the bounds and free of collisions: their information together
-/// fixes the base.
+/// Share of the design's evaluations spent pricing a looser acceleration limit.
+const LOOSER_SHARE: usize = 10;
+
+/// The quality `design` reaches together under [`LOOSER`] times the acceleration limit (the other bounds and the
+/// self-collision check kept): each trajectory searched again from where it is (feasible there too) with a tenth of
+/// the evaluations. What the limit costs this design, at least.
+fn looser(
+    model: &Model,
+    collision: Option<&SelfCollision>,
+    options: &Options,
+    base: &Base,
+    design: &[Candidate],
+    mut progress: impl FnMut(usize),
+) -> Result<Quality, ExciteError> {
+    let looser = Options { acceleration: options.acceleration.iter().map(|a| LOOSER * a).collect(), ..options.clone() };
+    let bounds = Bounds::new(model, &looser)?;
+    let mut sampler = Sampler::new(model, &bounds, collision, options, options.rate);
+    let mut set = design.to_vec();
+    let sum = |set: &[Candidate]| set.iter().skip(1).fold(set[0].information.clone(), |acc, c| acc + &c.information);
+    for k in 0..set.len() {
+        let others = sum(&set) - &set[k].information;
+        let mut rng = Rng::stream(options.seed, &[k as u64, 3]);
+        let evaluations = options.evaluations / LOOSER_SHARE;
+        let report = |e: usize| progress(k * evaluations + e);
+        set[k] = improve(&mut sampler, evaluations, base, &others, set[k].clone(), &mut rng, report);
+    }
+    Ok(Quality::of(base, &sum(&set)))
+}
+
+/// Random series drawn per trajectory for its start; the best (with the starts before it) is kept.
+const START_DRAWS: usize = 8;
+
+/// Random starts, one per trajectory, each the best of [`START_DRAWS`] series fitted into the bounds and free of
+/// collisions, judged with the starts before it (its base: that of all draws so far). Harmonic `l`'s coefficients
+/// are drawn with a spread of `1 / l`, so each harmonic adds as much acceleration: white coefficients would spend
+/// the acceleration limit on the highest harmonic.
 fn random_starts(sampler: &mut Sampler<'_>, options: &Options) -> Result<Vec<Candidate>, ExciteError> {
-    let dims = sampler.model.dof() * Fourier::free_per_joint(options.harmonics);
-    let mut current = Vec::with_capacity(options.count);
+    let n = sampler.model.dof();
+    let per_joint = Fourier::free_per_joint(options.harmonics);
+    let p = sampler.scales.len();
+    let mut current: Vec<Candidate> = Vec::with_capacity(options.count);
     let mut last_contact = None;
+    let mut everything = DMatrix::zeros(p, p);
     for k in 0..options.count {
         let mut rng = Rng::stream(options.seed, &[k as u64, 0]);
-        let fitted = (0..20).find_map(|_| {
-            let x: Vec<f64> = (0..dims).map(|_| rng.normal()).collect();
-            let c = sampler.fit(&x)?;
-            sampler.free(c).map_err(|pair| last_contact = pair).ok()
+        let mut drawn = Vec::new();
+        for _ in 0..4 * START_DRAWS {
+            let x: Vec<f64> =
+                (0..n * per_joint).map(|i| rng.normal() / (1 + i % (options.harmonics - 1)) as f64).collect();
+            let fitted = sampler.fit(&x).and_then(|c| sampler.free(c).map_err(|pair| last_contact = pair).ok());
+            drawn.extend(fitted);
+            if drawn.len() == START_DRAWS {
+                break;
+            }
+        }
+        drawn.iter().for_each(|c| everything += &c.information);
+        let base = Base::of(&everything);
+        let held = current.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
+        let best = drawn.into_iter().max_by(|a, b| {
+            let judge = |c: &Candidate| Quality::of(&base, &(&held + &c.information)).log_det;
+            judge(a).total_cmp(&judge(b))
         });
         let why = || match (last_contact, sampler.collision) {
             (Some(pair), Some(c)) => ExciteError::Collision(c.describe(pair)),
             _ => ExciteError::Infeasible,
         };
-        current.push(fitted.ok_or_else(why)?);
+        current.push(best.ok_or_else(why)?);
     }
     Ok(current)
-}
-
-/// A set of free coefficients kept within the bounds, with its information and peaks.
-#[derive(Debug, Clone)]
-struct Candidate {
-    x: Vec<f64>,
-    information: DMatrix<f64>,
-    peaks: [f64; 4],
 }
 
 /// Highest harmonic a design may have [Hz]: past a geared arm's joint bandwidth (a few Hz), where a series would be
@@ -461,29 +296,40 @@ fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
     }
 }
 
-/// The (1+1) evolution strategy from `start`: a Gaussian step relative to the coefficients' size, kept when the
-/// set's D-optimality (with `others` held) rises; the step grows on success and shrinks on failure (Rechenberg's
+/// Weight of a trajectory's own D-optimality beside the set's in what the search maximizes: a trajectory that only
+/// fills the others' gaps identifies little alone, and a log may be lost or run alone. On the Panda, 0.5 lifted the
+/// weakest trajectory alone from 2.2x to 2.7x the best random multi-sine's covariance trace, the set unchanged.
+const ALONE: f64 = 0.5;
+
+/// The (1+1) evolution strategy from `start`: a Gaussian step relative to each joint's coefficients' size, kept when the
+/// set's D-optimality (with `others` held) plus [`ALONE`] times the trajectory's own rises; the step grows on success and shrinks on failure (Rechenberg's
 /// rule, roughly one success in five at equilibrium).
 fn improve(
     sampler: &mut Sampler<'_>,
-    options: &Options,
+    evaluations: usize,
     base: &Base,
     others: &DMatrix<f64>,
     start: Candidate,
     rng: &mut Rng,
     mut progress: impl FnMut(usize),
 ) -> Candidate {
-    let judge = |w: &DMatrix<f64>| Quality::of(base, &(others + w)).log_det;
-    let dims = start.x.len();
+    let judge = |w: &DMatrix<f64>| Quality::of(base, &(others + w)).log_det + ALONE * Quality::of(base, w).log_det;
+    let per_joint = Fourier::free_per_joint(sampler.harmonics);
     let mut best_value = judge(&start.information);
     let mut best = start;
     let mut step = 0.3;
-    for e in 0..options.evaluations {
+    for e in 0..evaluations {
         if e % 50 == 0 {
             progress(e);
         }
-        let size = best.x.iter().map(|v| v * v).sum::<f64>().sqrt() / (dims as f64).sqrt();
-        let x: Vec<f64> = best.x.iter().map(|v| v + step * size * rng.normal()).collect();
+        // Each joint's step is relative to its own coefficients' size: their bounds differ by joint.
+        let x: Vec<f64> = (best.x.chunks(per_joint))
+            .flat_map(|block| {
+                let size = (block.iter().map(|v| v * v).sum::<f64>() / per_joint as f64).sqrt();
+                block.iter().map(move |v| (v, step * size))
+            })
+            .map(|(v, sigma)| v + sigma * rng.normal())
+            .collect();
         // The collision check costs more than the judging: only a candidate that would be kept is checked, and the
         // one it leaves (shrunk if it touched) is judged again.
         let kept = sampler

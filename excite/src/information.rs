@@ -102,8 +102,75 @@ pub fn expected_std(base: &Base, w: &DMatrix<f64>, scales: &[f64], sigma: f64) -
     (0..scales.len()).map(|k| sigma * scales[k] * cov[(k, k)].max(0.0).sqrt()).collect()
 }
 
-/// The scaled regressor rows of one sample added to `w`: `W += (Y S)^T (Y S)`.
-pub fn add_rows(w: &mut DMatrix<f64>, y: &DMatrix<f64>, scales: &DVector<f64>) {
-    let ys = DMatrix::from_fn(y.nrows(), y.ncols(), |r, c| y[(r, c)] * scales[c]);
-    w.gemm_tr(1.0, &ys, &ys, 1.0);
+/// Sums `W = sum (Y S)^T (Y S)` over samples' regressors `Y` (columns scaled by `S`). Rows are gathered in blocks and
+/// each block added by one matrix product: per sample the product is too small to run fast, and it took half of a
+/// design's time.
+pub struct Information {
+    scales: DVector<f64>,
+    rows: DMatrix<f64>,
+    filled: usize,
+    w: DMatrix<f64>,
+}
+
+/// Samples gathered per block.
+const BLOCK: usize = 64;
+
+impl Information {
+    pub fn new(scales: &DVector<f64>, joints: usize) -> Self {
+        let p = scales.len();
+        Information {
+            scales: scales.clone(),
+            rows: DMatrix::zeros(BLOCK * joints, p),
+            filled: 0,
+            w: DMatrix::zeros(p, p),
+        }
+    }
+
+    /// Adds one sample's regressor.
+    pub fn add(&mut self, y: &DMatrix<f64>) {
+        let r = y.nrows();
+        for c in 0..y.ncols() {
+            for k in 0..r {
+                self.rows[(self.filled + k, c)] = y[(k, c)] * self.scales[c];
+            }
+        }
+        self.filled += r;
+        if self.filled == self.rows.nrows() {
+            self.flush();
+        }
+    }
+
+    fn flush(&mut self) {
+        let rows = self.rows.rows(0, self.filled);
+        self.w.gemm(1.0, &rows.transpose(), &rows, 1.0);
+        self.filled = 0;
+    }
+
+    /// The sum.
+    pub fn finish(mut self) -> DMatrix<f64> {
+        self.flush();
+        self.w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The blocked sum is the per-sample sum, across a block's end (rounding apart: relative 1e-13 is a few
+    /// hundred ulps for sums of 150 products of numbers of order one).
+    #[test]
+    fn the_blocked_sum_is_the_sum_of_each_samples_rows() {
+        let scales = DVector::from_fn(5, |i, _| 0.5 + i as f64);
+        let mut blocked = Information::new(&scales, 2);
+        let mut plain = DMatrix::<f64>::zeros(5, 5);
+        for k in 0..150 {
+            let y = DMatrix::from_fn(2, 5, |r, c| ((k * 7 + r * 3 + c * 11) % 17) as f64 / 17.0 - 0.4);
+            let ys = DMatrix::from_fn(2, 5, |r, c| y[(r, c)] * scales[c]);
+            plain += ys.transpose() * &ys;
+            blocked.add(&y);
+        }
+        let blocked = blocked.finish();
+        assert!((blocked - &plain).amax() < 1e-13 * plain.amax(), "{plain}");
+    }
 }

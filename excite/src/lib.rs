@@ -3,9 +3,12 @@
 //! base parameters' information, as FloBaRoID and FIGAROH optimize it). What `identify` and the robot's family
 //! learn from then comes from motions chosen for them instead of whatever the robot happened to do.
 
+pub mod baseline;
 pub mod collision;
 pub mod design;
 pub mod information;
+pub mod motion;
+mod sampler;
 pub mod tours;
 pub mod write;
 

@@ -9,7 +9,7 @@ use dynforge_robot::{Data, Model, regressor};
 use nalgebra::{DMatrix, DVector};
 
 use crate::collision::SelfCollision;
-use crate::information::add_rows;
+use crate::information::Information;
 
 /// The scaled information of the generator's tour on `model` lasting `total` seconds, sampled at `rate`; `None` when
 /// no free waypoint is found.
@@ -35,9 +35,7 @@ pub fn tour_information(
             })
             .collect()
     };
-    let p = scales.len();
-    let scales = DVector::from_column_slice(scales);
-    let mut w = DMatrix::zeros(p, p);
+    let mut w = Information::new(&DVector::from_column_slice(scales), n);
     let (mut elapsed, mut from) = (0.0, None::<Vec<f64>>);
     while elapsed < total {
         let to = (0..cfg.max_attempts).map(|_| draw(&mut rng)).find(|q| {
@@ -54,9 +52,9 @@ pub fn tour_information(
                 let d = to[j] - a[j];
                 (q[j], qd[j], qdd[j]) = (a[j] + d * s, d * ds, d * dds);
             }
-            add_rows(&mut w, regressor(model, &mut data, &q, &qd, &qdd), &scales);
+            w.add(regressor(model, &mut data, &q, &qd, &qdd));
         }
         elapsed += duration + cfg.hold;
     }
-    Some(w)
+    Some(w.finish())
 }
