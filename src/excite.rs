@@ -44,9 +44,11 @@ pub struct ExciteArgs {
     /// Rate of the written CSV [Hz].
     #[arg(long, default_value_t = 500.0, value_parser = positive)]
     rate: f64,
-    /// Torque noise [N m] the report's expected standard deviations assume.
-    #[arg(long, default_value_t = 0.1, value_parser = positive)]
-    noise: f64,
+    /// Torque noise [N m]: one for every joint, or one per joint separated by commas. The design weighs each joint's
+    /// torques by the inverse of its noise (a noisy joint's torques tell less), and the report's expected standard
+    /// deviations assume it.
+    #[arg(long, value_delimiter = ',', default_value = "0.1")]
+    noise: Vec<f64>,
     /// Weld this joint (a gripper's, say) at a position: NAME or NAME=POSITION (default 0); repeatable.
     #[arg(long, value_name = "JOINT[=POSITION]", value_parser = weld)]
     fix: Vec<(String, f64)>,
@@ -75,6 +77,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
         velocity_share: args.velocity_share,
         effort_share: args.effort_share,
         evaluations: args.evaluations,
+        noise: args.noise,
         seed: args.seed,
         ..Options::default()
     };
@@ -103,7 +106,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
     })
     .with_context(|| format!("designing excitations for {}", args.urdf.display()))?;
     bar.finish_and_clear();
-    let files = write_design(&args.out, &model, &design, &options, args.rate, args.noise)?;
+    let files = write_design(&args.out, &model, &design, &options, args.rate)?;
     print!("{}", summary(&model, &design, &options));
     for f in files {
         println!("wrote {}", f.display());

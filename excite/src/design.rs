@@ -35,6 +35,9 @@ pub struct Options {
     pub effort_share: f64,
     /// Share of each joint's range kept free at either end.
     pub position_margin: f64,
+    /// Torque noise per joint, or one for all [N m or N]: each joint's torques weigh by its inverse in the design's
+    /// information, and the report's expected deviations assume it.
+    pub noise: Vec<f64>,
     /// Samples per second the information is summed over.
     pub rate: f64,
     /// Candidates judged per trajectory.
@@ -53,6 +56,7 @@ impl Default for Options {
             velocity_share: 0.8,
             effort_share: 0.8,
             position_margin: 0.05,
+            noise: vec![0.1],
             rate: 50.0,
             evaluations: 1500,
             seed: 0,
@@ -95,7 +99,7 @@ pub struct Clearance {
 }
 
 /// Rate [Hz] the final trajectories' efforts are checked at.
-const DENSE_RATE: f64 = 1000.0;
+pub(crate) const DENSE_RATE: f64 = 1000.0;
 
 /// The factor on the acceleration limit the report prices: what the design would gain were the limit this much
 /// looser.
@@ -158,6 +162,7 @@ pub fn design_with(
         model,
         collision,
         &scales,
+        &bounds.noise,
         (options.count as f64 * options.duration, options.rate),
         options.seed,
     )
@@ -348,4 +353,82 @@ fn improve(
         }
     }
     best
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::information::expected_std;
+    use crate::motion::Motion;
+
+    /// Three joints with different velocity and position limits: a vertical yaw, a shoulder against gravity, a
+    /// light wrist.
+    pub(crate) fn arm() -> Model {
+        let link = |name: &str, mass: f64| {
+            format!(
+                r#"<link name="{name}"><inertial><origin xyz="0 0 0.15"/><mass value="{mass}"/><inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.005"/></inertial></link>"#
+            )
+        };
+        let joint = |name: &str, parent: &str, child: &str, axis: &str, range: f64, velocity: f64| {
+            format!(
+                r#"<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/><origin xyz="0 0 0.3"/><axis xyz="{axis}"/><limit lower="-{range}" upper="{range}" effort="300" velocity="{velocity}"/></joint>"#
+            )
+        };
+        let urdf = format!(
+            r#"<robot name="three"><link name="base"/>{}{}{}{}{}{}</robot>"#,
+            link("a", 3.0),
+            link("b", 2.0),
+            link("c", 0.5),
+            joint("yaw", "base", "a", "0 0 1", 2.5, 1.5),
+            joint("shoulder", "a", "b", "0 1 0", 1.2, 2.0),
+            joint("wrist", "b", "c", "1 0 0", 3.0, 3.0),
+        );
+        dynforge_robot::urdf::parse(&urdf, "three.urdf").expect("a valid URDF")
+    }
+
+    pub(crate) fn options() -> Options {
+        Options { duration: 4.0, count: 2, evaluations: 40, ..Options::default() }
+    }
+
+    /// Per joint the largest share of its position room, speed and acceleration bounds reached along `f` at 1 kHz.
+    fn reached(model: &Model, options: &Options, f: &Fourier) -> Vec<f64> {
+        let bounds = Bounds::new(model, options).expect("valid options");
+        let sampler = Sampler::new(model, &bounds, None, options, 1000.0);
+        sampler.kinematic_peaks(f).iter().map(|p| p[0].max(p[1]).max(p[2])).collect()
+    }
+
+    /// Every joint of every trajectory reaches its own first binding bound (the efforts here are far inside their
+    /// limits, so nothing shrinks the motion after the joint-by-joint scaling), and none passes it between the 50 Hz
+    /// samples the design checks: at 1 kHz the largest share is at most sec(pi 5 / 200) = 1.0031 of its sampled peak
+    /// (Ehlich and Zeller), which the scaling already allowed for, so below 1 + 1e-9.
+    #[test]
+    fn each_joint_reaches_its_own_first_bound_and_none_passes_it() {
+        let (model, options) = (arm(), options());
+        let design = design(&model, &options).expect("a design");
+        for f in &design.trajectories {
+            let shares = reached(&model, &options, f);
+            assert!(shares.iter().all(|&s| s > 0.99 && s <= 1.0 + 1e-9), "{shares:?}");
+            assert!(f.duration() == options.duration);
+        }
+    }
+
+    /// One noise for all joints scales the information and nothing else: twice the noise (an exact factor of 4 on
+    /// the information, a power of two) designs the same trajectories, with expected deviations exactly twice as
+    /// large. One joint's noise alone changes what is judged, so the design too.
+    #[test]
+    fn the_noise_weighs_the_information() {
+        let model = arm();
+        let at = |noise: Vec<f64>| design(&model, &Options { noise, ..options() }).expect("a design");
+        let (a, b, c) = (at(vec![0.1]), at(vec![0.2]), at(vec![0.1, 0.1, 5.0]));
+        assert_eq!(a.trajectories, b.trajectories);
+        let std = |d: &Design| expected_std(&d.base, &d.information, &d.scales);
+        for (x, y) in std(&a).iter().zip(std(&b)) {
+            assert!((2.0 * x - y).abs() <= 1e-12 * y, "{x} {y}");
+        }
+        assert_ne!(a.trajectories, c.trajectories);
+        let refused = design(&model, &Options { noise: vec![0.1, 0.2], ..options() });
+        assert!(
+            matches!(refused, Err(ExciteError::Option(m)) if m.contains("2 torque noise values given for 3 joints"))
+        );
+    }
 }

@@ -75,8 +75,7 @@ pub struct Quality {
     pub log_det: f64,
     /// Largest over smallest eigenvalue's square root: the scaled regressor's condition number.
     pub condition: f64,
-    /// Trace of the base covariance at unit torque noise (scaled parameters): what a torque noise of sigma turns into
-    /// `sigma^2` times this.
+    /// Trace of the base covariance (scaled parameters) at the torque noise the information was weighted by.
     pub trace: f64,
 }
 
@@ -93,20 +92,23 @@ impl Quality {
 }
 
 /// Per parameter ([`dynforge_proto::params`] layout, in its units), the standard deviation of its identifiable part
-/// estimated by least squares from torques with white noise `sigma` on every joint: `sigma` times the scale times
-/// the root of the diagonal of `B (B^T W B)^-1 B^T`. Zero where the torques see nothing of it.
-pub fn expected_std(base: &Base, w: &DMatrix<f64>, scales: &[f64], sigma: f64) -> Vec<f64> {
+/// estimated by least squares from torques with the white noise `W` was weighted by: the scale times the root of the
+/// diagonal of `B (B^T W B)^-1 B^T`. Zero where the torques see nothing of it.
+pub fn expected_std(base: &Base, w: &DMatrix<f64>, scales: &[f64]) -> Vec<f64> {
     let restricted = base.restrict(w);
     let inverse = restricted.clone().try_inverse().unwrap_or_else(|| DMatrix::zeros(base.rank(), base.rank()));
     let cov = &base.basis * inverse * base.basis.transpose();
-    (0..scales.len()).map(|k| sigma * scales[k] * cov[(k, k)].max(0.0).sqrt()).collect()
+    (0..scales.len()).map(|k| scales[k] * cov[(k, k)].max(0.0).sqrt()).collect()
 }
 
-/// Sums `W = sum (Y S)^T (Y S)` over samples' regressors `Y` (columns scaled by `S`). Rows are gathered in blocks and
-/// each block added by one matrix product: per sample the product is too small to run fast, and it took half of a
-/// design's time.
+/// Sums `W = sum (N^-1 Y S)^T (N^-1 Y S)` over samples' regressors `Y`: columns scaled by `S`, each joint's row
+/// divided by its torque noise `N` (weighted least squares' information, as the classical design tools weigh it: a
+/// noisy joint's torques tell less). Rows are gathered in blocks and each block added by one matrix product: per
+/// sample the product is too small to run fast, and it took half of a design's time.
 pub struct Information {
     scales: DVector<f64>,
+    /// Per joint the inverse of its noise.
+    weights: Vec<f64>,
     rows: DMatrix<f64>,
     filled: usize,
     w: DMatrix<f64>,
@@ -116,11 +118,13 @@ pub struct Information {
 const BLOCK: usize = 64;
 
 impl Information {
-    pub fn new(scales: &DVector<f64>, joints: usize) -> Self {
+    /// A sum for these scales and per joint noise [N m or N].
+    pub fn new(scales: &DVector<f64>, noise: &[f64]) -> Self {
         let p = scales.len();
         Information {
             scales: scales.clone(),
-            rows: DMatrix::zeros(BLOCK * joints, p),
+            weights: noise.iter().map(|s| 1.0 / s).collect(),
+            rows: DMatrix::zeros(BLOCK * noise.len(), p),
             filled: 0,
             w: DMatrix::zeros(p, p),
         }
@@ -131,7 +135,7 @@ impl Information {
         let r = y.nrows();
         for c in 0..y.ncols() {
             for k in 0..r {
-                self.rows[(self.filled + k, c)] = y[(k, c)] * self.scales[c];
+                self.rows[(self.filled + k, c)] = y[(k, c)] * self.scales[c] * self.weights[k];
             }
         }
         self.filled += r;
@@ -157,16 +161,17 @@ impl Information {
 mod tests {
     use super::*;
 
-    /// The blocked sum is the per-sample sum, across a block's end (rounding apart: relative 1e-13 is a few
-    /// hundred ulps for sums of 150 products of numbers of order one).
+    /// The blocked sum is the per-sample sum of the weighted rows, across a block's end (rounding apart: relative
+    /// 1e-13 is a few hundred ulps for sums of 150 products of numbers of order one).
     #[test]
-    fn the_blocked_sum_is_the_sum_of_each_samples_rows() {
+    fn the_blocked_sum_is_the_sum_of_each_samples_weighted_rows() {
         let scales = DVector::from_fn(5, |i, _| 0.5 + i as f64);
-        let mut blocked = Information::new(&scales, 2);
+        let noise = [0.5, 4.0];
+        let mut blocked = Information::new(&scales, &noise);
         let mut plain = DMatrix::<f64>::zeros(5, 5);
         for k in 0..150 {
             let y = DMatrix::from_fn(2, 5, |r, c| ((k * 7 + r * 3 + c * 11) % 17) as f64 / 17.0 - 0.4);
-            let ys = DMatrix::from_fn(2, 5, |r, c| y[(r, c)] * scales[c]);
+            let ys = DMatrix::from_fn(2, 5, |r, c| y[(r, c)] * scales[c] / noise[r]);
             plain += ys.transpose() * &ys;
             blocked.add(&y);
         }

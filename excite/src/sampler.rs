@@ -11,7 +11,8 @@ use crate::information::{Information, scales};
 use crate::motion::Motion;
 use dynforge_proto::fourier::Fourier;
 
-/// Per joint the bounds the motion keeps: position interval, speed, acceleration and effort.
+/// Per joint the bounds the motion keeps (position interval, speed, acceleration and effort) and the torque noise its
+/// information is weighted by.
 pub(crate) struct Bounds {
     pub(crate) start: Vec<f64>,
     pub(crate) lower: Vec<f64>,
@@ -19,24 +20,35 @@ pub(crate) struct Bounds {
     pub(crate) speed: Vec<f64>,
     pub(crate) acceleration: Vec<f64>,
     pub(crate) effort: Vec<f64>,
+    pub(crate) noise: Vec<f64>,
+}
+
+/// `values` for each of `n` joints: one for all or one each, every one positive and finite; `what` names them in the
+/// error.
+fn per_joint(values: &[f64], n: usize, what: &str) -> Result<Vec<f64>, ExciteError> {
+    if !(values.len() == 1 || values.len() == n) {
+        return Err(ExciteError::Option(format!(
+            "{} {what} values given for {n} joints: give one for all or one per joint",
+            values.len()
+        )));
+    }
+    if let Some(v) = values.iter().find(|v| !(v.is_finite() && **v > 0.0)) {
+        return Err(ExciteError::Option(format!("{what} {v} is not positive")));
+    }
+    Ok((0..n).map(|j| values[if values.len() == 1 { 0 } else { j }]).collect())
 }
 
 impl Bounds {
     pub(crate) fn new(model: &Model, o: &Options) -> Result<Self, ExciteError> {
         let n = model.dof();
-        if !(o.acceleration.len() == 1 || o.acceleration.len() == n) {
-            return Err(ExciteError::Option(format!(
-                "{} acceleration limits given for {n} joints: give one for all or one per joint",
-                o.acceleration.len()
-            )));
-        }
         let mut b = Bounds {
             start: Vec::new(),
             lower: Vec::new(),
             upper: Vec::new(),
             speed: Vec::new(),
-            acceleration: Vec::new(),
+            acceleration: per_joint(&o.acceleration, n, "acceleration limit")?,
             effort: Vec::new(),
+            noise: per_joint(&o.noise, n, "torque noise")?,
         };
         for (j, joint) in model.joints().iter().enumerate() {
             let l = &joint.limits;
@@ -60,11 +72,7 @@ impl Bounds {
             b.lower.push(lo + margin);
             b.upper.push(hi - margin);
             b.speed.push(o.velocity_share * l.velocity);
-            b.acceleration.push(if o.acceleration.len() == 1 { o.acceleration[0] } else { o.acceleration[j] });
             b.effort.push(o.effort_share * l.effort);
-        }
-        if let Some(a) = b.acceleration.iter().find(|a| a.is_nan() || **a <= 0.0) {
-            return Err(ExciteError::Option(format!("acceleration limit {a} is not positive")));
         }
         Ok(b)
     }
@@ -118,7 +126,7 @@ impl<'a> Sampler<'a> {
         let (model, b, scales, nominal, samples) = (self.model, self.bounds, &self.scales, &self.nominal, self.samples);
         let part = |range: std::ops::Range<usize>, data: &mut Data| {
             let n = model.dof();
-            let mut w = information.then(|| Information::new(scales, n));
+            let mut w = information.then(|| Information::new(scales, &b.noise));
             let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
             let mut peaks = [0.0f64; 4];
             for k in range {
@@ -236,12 +244,17 @@ impl<'a> Sampler<'a> {
     /// Per joint the largest share of its position room, speed and acceleration bounds `f` reaches at the samples
     /// (each depends on that joint's coefficients alone, in proportion).
     pub(crate) fn kinematic_peaks(&self, f: &impl Motion) -> Vec<[f64; 3]> {
+        self.kinematic_peaks_at(f, self.samples)
+    }
+
+    /// [`Sampler::kinematic_peaks`] at `samples` evenly spaced instants.
+    pub(crate) fn kinematic_peaks_at(&self, f: &impl Motion, samples: usize) -> Vec<[f64; 3]> {
         let n = self.model.dof();
         let b = self.bounds;
         let (mut q, mut qd, mut qdd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
         let mut peaks = vec![[0.0f64; 3]; n];
-        for k in 0..self.samples {
-            f.at(f.duration() * k as f64 / self.samples as f64, &mut q, &mut qd, &mut qdd);
+        for k in 0..samples {
+            f.at(f.duration() * k as f64 / samples as f64, &mut q, &mut qd, &mut qdd);
             for (j, p) in peaks.iter_mut().enumerate() {
                 let d = q[j] - b.start[j];
                 let room = if d >= 0.0 { b.upper[j] - b.start[j] } else { b.start[j] - b.lower[j] };

@@ -11,12 +11,13 @@ use nalgebra::{DMatrix, DVector};
 use crate::collision::SelfCollision;
 use crate::information::Information;
 
-/// The scaled information of the generator's tour on `model` lasting `total` seconds, sampled at `rate`; `None` when
-/// no free waypoint is found.
+/// The scaled information of the generator's tour on `model` lasting `total` seconds, sampled at `rate`, each joint
+/// weighted by its `noise`; `None` when no free waypoint is found.
 pub fn tour_information(
     model: &Model,
     collision: Option<&SelfCollision>,
     scales: &[f64],
+    noise: &[f64],
     (total, rate): (f64, f64),
     seed: u64,
 ) -> Option<DMatrix<f64>> {
@@ -35,7 +36,7 @@ pub fn tour_information(
             })
             .collect()
     };
-    let mut w = Information::new(&DVector::from_column_slice(scales), n);
+    let mut w = Information::new(&DVector::from_column_slice(scales), noise);
     let (mut elapsed, mut from) = (0.0, None::<Vec<f64>>);
     while elapsed < total {
         let to = (0..cfg.max_attempts).map(|_| draw(&mut rng)).find(|q| {

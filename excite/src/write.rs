@@ -29,14 +29,13 @@ fn write(path: &Path, text: &str) -> Result<(), ExciteError> {
 /// per trajectory, `report.md` and last the set's manifest (`dynforge_proto::family::SET`) into `dir` (created);
 /// returns the files written. The directory is one unit: the manifest goes first, so an interrupted write leaves a
 /// set no reader takes as complete, and members of an earlier, larger set are removed. `rate` is the CSV's [Hz];
-/// `noise` the torque noise [N m] the expected deviations assume.
+/// the expected deviations assume `options.noise`.
 pub fn write_design(
     dir: &Path,
     model: &Model,
     design: &Design,
     options: &Options,
     rate: f64,
-    noise: f64,
 ) -> Result<Vec<PathBuf>, ExciteError> {
     let failed = |path: &Path| {
         let file = path.display().to_string();
@@ -97,7 +96,7 @@ pub fn write_design(
         std::fs::remove_file(&stale).map_err(failed(&stale))?;
     }
     let path = dir.join("report.md");
-    write(&path, &report(model, design, options, noise))?;
+    write(&path, &report(model, design, options))?;
     files.push(path);
     let set = serde_json::to_string_pretty(&ExcitationSet::of(&texts)).expect("a manifest serialises");
     write(&manifest, &format!("{set}\n"))?;
@@ -127,7 +126,7 @@ fn stale_members(dir: &Path, count: usize) -> std::io::Result<Vec<PathBuf>> {
 /// median of their draws), the generator's tours and the design at a looser acceleration limit; then the gains.
 fn quality_table(out: &mut String, design: &Design, options: &Options) {
     let count = options.count;
-    let _ = writeln!(out, "| | mean log eigenvalue | condition number | covariance trace (unit noise) |");
+    let _ = writeln!(out, "| | mean log eigenvalue | condition number | covariance trace |");
     let _ = writeln!(out, "|---|---:|---:|---:|");
     let mut row = |name: &str, q: &Quality| {
         let _ = writeln!(out, "| {name} | {:.3} | {:.3e} | {:.3e} |", q.log_det, q.condition, q.trace);
@@ -255,8 +254,8 @@ pub fn summary(model: &Model, design: &Design, options: &Options) -> String {
 }
 
 /// The report: how the design was asked for, its quality beside what it is measured against, the peaks it reaches,
-/// and per parameter the standard deviation least squares would give at torque noise `noise`.
-pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> String {
+/// and per parameter the standard deviation least squares would give at the torque noise of `options`.
+pub fn report(model: &Model, design: &Design, options: &Options) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# Excitation of {}\n", model.name());
     let _ = writeln!(
@@ -313,12 +312,15 @@ pub fn report(model: &Model, design: &Design, options: &Options, noise: f64) -> 
             );
         }
     }
-    let std = expected_std(&design.base, &design.information, &design.scales, noise);
+    let std = expected_std(&design.base, &design.information, &design.scales);
+    let noise: Vec<String> = options.noise.iter().map(|s| format!("{s}")).collect();
     let _ = writeln!(
         out,
         "\nExpected standard deviation of each parameter's identifiable part by least squares, with white torque noise \
-         of {noise} N m on every joint sampled at {} Hz (parameters about each link's joint frame; 0 = the torques \
-         see nothing of it):\n",
+         of {} N m (N for a prismatic joint) {} sampled at {} Hz (parameters about each link's joint frame; 0 = the \
+         torques see nothing of it; the design weighs each joint's torques by the inverse of its noise):\n",
+        noise.join(", "),
+        if noise.len() == 1 { "on every joint" } else { "per joint" },
         options.rate
     );
     let _ = writeln!(out, "| link | {} |", INERTIAL_NAMES.join(" | "));
