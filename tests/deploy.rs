@@ -279,7 +279,7 @@ fn names_in(dir: &Path) -> Vec<String> {
 
 const TRAIN: &str = "--epochs 1 --generated 1024 --dim 32 --validation 0.34";
 
-/// Items 3, 4 and 13 of issue 24 on the way: the merge job gets the CPUs asked for (`--merge-cpus`, default
+/// On the way: the merge job gets the CPUs asked for (`--merge-cpus`, default
 /// `--cpus`), a relative `--dynforge` works, and `--prune-args` repeated builds each cache before the shards go.
 #[test]
 fn a_slurm_job_array_of_three_partitions_merges_into_the_single_host_dataset_and_trains() {
@@ -596,7 +596,7 @@ fn validate(python: &str, yaml: &str) -> (bool, String) {
     (out.status.success(), said(&out))
 }
 
-/// Also issue 24, items 7 and 9: the images are pulled only when absent, the volume names a storage class (a
+/// Also: the images are pulled only when absent, the volume names a storage class (a
 /// placeholder for a ReadWriteMany one), and the files say what they need and mention nothing that is not there.
 #[test]
 fn the_kubernetes_manifests_render_and_pass_the_api_schema() {

@@ -1,4 +1,4 @@
-//! End-to-end tests of the hostile cases an operator campaign found (issue 24, items 14-22): the real binary, real
+//! End-to-end tests of the hostile cases an operator campaign found: the real binary, real
 //! processes, real kills. Each case is one that failed before its fix.
 
 mod common;

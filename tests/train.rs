@@ -549,7 +549,7 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
         assert_eq!(report["held_out"], by.name());
         assert!(markdown.contains(&format!("34 % of the {} held out (seed 0)", by.name())), "{markdown}");
         let rule = SplitRule { by, seed: 0, fraction: 0.34 };
-        let whole = |&(robot, trajectory): &(u64, u32)| rule.side(Origin { robot, trajectory, window: 0 });
+        let whole = |&(robot, trajectory): &(u64, u32)| rule.side(Origin { robot, trajectory, segment: 0 });
         let held: Vec<&(u64, u32)> = shards.iter().filter(|s| whole(s) == Split::Validation).collect();
         let recordings = report["recordings"]["count"].as_u64().unwrap() as usize;
         let robots = report["robots"]["count"].as_u64().unwrap() as usize;

@@ -32,7 +32,8 @@ pub enum HoldOut {
     Robots,
     /// Whole recordings, of robots whose other recordings are trained on.
     Trajectories,
-    /// Windows drawn across all robots and recordings.
+    /// Time segments of recordings drawn across all robots and recordings: a window and its offset siblings (the same
+    /// stretch of motion shifted by a few milliseconds) are on one side.
     Windows,
 }
 
@@ -46,13 +47,13 @@ impl HoldOut {
     }
 }
 
-/// Where a window comes from: its robot, the recording (the robot's trajectory index) and its place in the
-/// recording (0, 1, ... in time order).
+/// Where a window comes from: its robot, the recording (the robot's trajectory index) and its time segment in the
+/// recording (see [`segments`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Origin {
     pub robot: u64,
     pub trajectory: u32,
-    pub window: u32,
+    pub segment: u32,
 }
 
 /// A train/validation split: what is held out, the seed and the share held out.
@@ -70,12 +71,13 @@ impl SplitRule {
     }
 
     /// The side of the window at `o`: decided by a hash of the seed and of what is held out (the robot; the robot and
-    /// trajectory; or all three), so every window of a held-out unit is on the same side, on every machine.
+    /// trajectory; or those and the time segment), so every window of a held-out unit is on the same side, on every
+    /// machine.
     pub fn side(&self, o: Origin) -> Split {
         let u = match self.by {
             HoldOut::Robots => return split_of(self.seed, o.robot, self.fraction),
             HoldOut::Trajectories => unit(&[self.seed, o.robot, o.trajectory as u64, u64::MAX]),
-            HoldOut::Windows => unit(&[self.seed, o.robot, o.trajectory as u64, o.window as u64]),
+            HoldOut::Windows => unit(&[self.seed, o.robot, o.trajectory as u64, o.segment as u64]),
         };
         if u < self.fraction { Split::Validation } else { Split::Train }
     }
@@ -99,16 +101,30 @@ fn unit(key: &[u64]) -> f64 {
     (content_hash(&bytes) >> 11) as f64 / (1u64 << 53) as f64
 }
 
-/// The origins of windows stored in recording order with their robot and trajectory: each window's place in its
-/// recording is its count among the windows of the same recording before it (a recording's windows are stored
-/// together, in time order).
-pub fn origins(robots: &[u64], trajectories: &[u32]) -> Vec<Origin> {
+/// The time segment of each of a recording's `count` windows, listed as [`crate::window::WindowSpec::windows`]
+/// lists them (offset by offset, each offset's in time order) for `offsets` offsets: the k-th window of every offset
+/// is segment k, the same stretch of motion shifted by multiples of the secondary sampling rate. The offsets' window
+/// counts differ by at most one and do not rise with the offset, so the first `count % offsets` hold one more.
+/// Neighbouring segments overlap by at most `stride - ssr` samples at their ends (48 of a window's 4,096 at
+/// 64:64:16), where a window of a late offset runs into the next segment's first.
+pub fn segments(count: usize, offsets: usize) -> Vec<u32> {
+    let offsets = offsets.max(1);
+    let (q, r) = (count / offsets, count % offsets);
+    (0..offsets).flat_map(|o| 0..(q + usize::from(o < r)) as u32).collect()
+}
+
+/// The origins of windows stored recording by recording with their robot and trajectory, each recording's windows
+/// together as [`crate::window::WindowSpec::windows`] lists them for `offsets` offsets.
+pub fn origins(robots: &[u64], trajectories: &[u32], offsets: usize) -> Vec<Origin> {
     let mut out = Vec::with_capacity(robots.len());
-    let mut window = 0;
-    for (i, (&robot, &trajectory)) in robots.iter().zip(trajectories).enumerate() {
-        let same = i > 0 && robots[i - 1] == robot && trajectories[i - 1] == trajectory;
-        window = if same { window + 1 } else { 0 };
-        out.push(Origin { robot, trajectory, window });
+    let mut first = 0;
+    for i in 1..=robots.len() {
+        let ends = i == robots.len() || robots[i] != robots[first] || trajectories[i] != trajectories[first];
+        if ends {
+            let (robot, trajectory) = (robots[first], trajectories[first]);
+            out.extend(segments(i - first, offsets).into_iter().map(|segment| Origin { robot, trajectory, segment }));
+            first = i;
+        }
     }
     out
 }
@@ -137,13 +153,13 @@ mod tests {
     fn each_rule_holds_out_its_unit_whole_and_near_the_fraction() {
         let grid: Vec<Origin> = (0..400u64)
             .flat_map(|robot| {
-                (0..16u32).flat_map(move |trajectory| (0..5u32).map(move |window| Origin { robot, trajectory, window }))
+                (0..16u32).flat_map(move |trajectory| (0..5u32).map(move |segment| Origin { robot, trajectory, segment }))
             })
             .collect();
         for by in [HoldOut::Robots, HoldOut::Trajectories, HoldOut::Windows] {
             let rule = SplitRule { by, seed: 5, fraction: 0.2 };
             let held: Vec<&Origin> = grid.iter().filter(|o| rule.side(**o) == Split::Validation).collect();
-            // Units: 400 robots (sd of the share 0.02), 6400 recordings (0.005), 32000 windows (0.0022); 5 sd.
+            // Units: 400 robots (sd of the share 0.02), 6400 recordings (0.005), 32000 segments (0.0022); 5 sd.
             let share = held.len() as f64 / grid.len() as f64;
             let five_sd = match by {
                 HoldOut::Robots => 0.1,
@@ -154,7 +170,7 @@ mod tests {
             let unit_of = |o: &Origin| match by {
                 HoldOut::Robots => (o.robot, 0, 0),
                 HoldOut::Trajectories => (o.robot, o.trajectory, 0),
-                HoldOut::Windows => (o.robot, o.trajectory, o.window),
+                HoldOut::Windows => (o.robot, o.trajectory, o.segment),
             };
             let mut sides = std::collections::HashMap::new();
             for o in &grid {
@@ -179,11 +195,53 @@ mod tests {
         }
     }
 
+    /// Segments follow `WindowSpec::windows`' order for every recording length around the counts' steps, and
+    /// origins restart them at each recording.
     #[test]
-    fn origins_count_windows_within_each_recording() {
-        let o = origins(&[1, 1, 1, 1, 2], &[0, 0, 1, 1, 1]);
-        let w: Vec<u32> = o.iter().map(|o| o.window).collect();
-        assert_eq!(w, [0, 1, 0, 1, 0]);
-        assert_eq!(o[3], Origin { robot: 1, trajectory: 1, window: 1 });
+    fn segments_are_the_windows_places_in_time() {
+        let spec = crate::window::WindowSpec::default();
+        for samples in (4000..30_000).step_by(97) {
+            let windows = spec.windows(samples);
+            let expected: Vec<u32> = windows.iter().map(|w| (w.start / spec.len) as u32).collect();
+            assert_eq!(segments(windows.len(), spec.offsets().count()), expected, "{samples} samples");
+        }
+        let o = origins(&[1, 1, 1, 1, 1, 2], &[0, 0, 0, 1, 1, 1], 2);
+        let s: Vec<u32> = o.iter().map(|o| o.segment).collect();
+        assert_eq!(s, [0, 1, 0, 0, 0, 0]);
+        assert_eq!(o[4], Origin { robot: 1, trajectory: 1, segment: 0 });
+    }
+
+    /// Under the split by window, no validation window has a training window of its recording overlapping it by
+    /// more than `stride - ssr` source samples (neighbouring segments' ends), over many seeds; split window by
+    /// window, as before, a window's offset siblings (shifted by 16 ms, 4,080 of 4,096 samples shared) land on both
+    /// sides.
+    #[test]
+    fn the_split_by_window_keeps_a_windows_shifted_copies_on_its_side() {
+        let spec = crate::window::WindowSpec::default();
+        let samples = 41_000;
+        let windows = spec.windows(samples);
+        let origins = origins(&vec![7; windows.len()], &vec![3; windows.len()], spec.offsets().count());
+        let overlap = |a: usize, b: usize| {
+            let (x, y) = (spec.samples(&windows[a], samples), spec.samples(&windows[b], samples));
+            y.end.min(x.end).saturating_sub(y.start.max(x.start))
+        };
+        let (mut largest, mut before) = (0, 0);
+        for seed in 0..200 {
+            let rule = SplitRule { by: HoldOut::Windows, seed, fraction: 0.3 };
+            let side = |i: usize| rule.side(origins[i]);
+            let by_window = |i: usize| unit(&[seed, 7, 3, i as u64]) < 0.3;
+            for a in 0..windows.len() {
+                for b in 0..windows.len() {
+                    if side(a) == Split::Validation && side(b) == Split::Train {
+                        largest = largest.max(overlap(a, b));
+                    }
+                    if by_window(a) && !by_window(b) {
+                        before = before.max(overlap(a, b));
+                    }
+                }
+            }
+        }
+        assert!(largest <= spec.stride - spec.ssr, "{largest}");
+        assert_eq!(before, spec.len * spec.stride - spec.ssr);
     }
 }

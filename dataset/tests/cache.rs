@@ -181,7 +181,7 @@ fn a_cache_holds_every_recorded_shard_as_recorded_or_is_not_written() {
     assert!(again.hit && again.held == Some(recorded));
 }
 
-/// A cache file from before caches listed their shards (one could be partial: issue 24, item 14) is not trusted where
+/// A cache file from before caches listed their shards (one could be partial) is not trusted where
 /// the shards are still there: it is rebuilt, with its list. Only where shards were pruned, and it is all that is
 /// left, is it read, without a list (on which `prepare --prune` deletes no shard).
 #[test]

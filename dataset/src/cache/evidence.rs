@@ -73,9 +73,10 @@ impl EvidenceList {
         &self.h[i * p..(i + 1) * p]
     }
 
-    /// Where each piece comes from (for a list of windows: stored recording by recording, in time order).
-    pub fn origins(&self) -> Vec<Origin> {
-        origins(&self.robots, &self.trajectories)
+    /// Where each piece comes from, for a list of windows of `spec` (stored recording by recording, each
+    /// recording's as [`WindowSpec::windows`] lists them).
+    pub fn origins(&self, spec: &WindowSpec) -> Vec<Origin> {
+        origins(&self.robots, &self.trajectories, spec.offsets().count())
     }
 
     /// Evidence summed per robot over the pieces `keep` accepts (by index): (robot, labels, evidence).
@@ -172,7 +173,7 @@ impl PhysicsSet {
     /// windows are (under a split by window a recording's evidence holds its windows'); otherwise the side of its
     /// robot or trajectory.
     pub fn sides(&self, rule: &SplitRule) -> (Vec<Split>, Vec<Split>) {
-        let windows: Vec<Split> = self.windows.origins().into_iter().map(|o| rule.side(o)).collect();
+        let windows: Vec<Split> = self.windows.origins(&self.spec).into_iter().map(|o| rule.side(o)).collect();
         let r = &self.recordings;
         let recordings = match rule.by {
             HoldOut::Windows => {
@@ -185,7 +186,7 @@ impl PhysicsSet {
                 sides
             }
             _ => (0..r.len())
-                .map(|i| rule.side(Origin { robot: r.robots[i], trajectory: r.trajectories[i], window: 0 }))
+                .map(|i| rule.side(Origin { robot: r.robots[i], trajectory: r.trajectories[i], segment: 0 }))
                 .collect(),
         };
         (windows, recordings)

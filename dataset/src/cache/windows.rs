@@ -64,7 +64,7 @@ impl CachedWindows {
 
     /// Where each window comes from.
     pub fn origins(&self) -> Vec<Origin> {
-        origins(&self.robots, &self.trajectories)
+        origins(&self.robots, &self.trajectories, self.spec.offsets().count())
     }
 
     pub fn count(&self) -> usize {

@@ -42,7 +42,8 @@ pub const MIN_ROBOTS: usize = 32;
 /// The coverage targets of a standard deviation: the share within one, and within two.
 const WITHIN_ONE: f64 = 0.6827;
 const WITHIN_TWO: f64 = 0.9545;
-/// How far each share may miss its target, as issue 21 asks (68 +- 5, 95 +- 3): the units of the fit's deviation.
+/// How far each share may miss its target (68 +- 5, 95 +- 3: what a user can read a spread as): the units of the
+/// fit's deviation.
 const TOLERANCE_ONE: f64 = 0.05;
 const TOLERANCE_TWO: f64 = 0.03;
 /// Scales tried below 1, `10^(-i / 20)` for `i` in `0..=SCALE_STEPS` (down to a thousandth).
@@ -427,7 +428,7 @@ fn log_counts(logs: usize) -> Vec<usize> {
 
 /// Effort noise the validation logs are given to calibrate a posterior above the noise floor, as shares of each
 /// joint's torque RMS: from torque sensors' (a Panda's or an iiwa's) to motor currents' (a UR5's), around the 1 % of
-/// issue 21's real-robot case. One level does not do: fitted at 1 % alone, the spreads held at 1 % (67-73 % within
+/// a real robot's motor currents. One level does not do: fitted at 1 % alone, the spreads held at 1 % (67-73 % within
 /// one on held-out robots) but were wide at 0.3 % (76-89 %) and narrow at 3 % (57-68 %), the floor standing in for
 /// part of what grows with the noise.
 pub const VALIDATION_NOISE: [f64; 3] = [0.003, 0.01, 0.03];

@@ -8,7 +8,7 @@ use crate::cache::Skipped;
 use crate::cache::windows::CachedWindows;
 use crate::features::JacobianFeatures;
 use crate::normalize::Standardizer;
-use crate::split::{Origin, Split, SplitRule};
+use crate::split::{Origin, Split, SplitRule, segments};
 
 /// Windows split and standardised, ready for batches.
 pub struct Corpus {
@@ -30,11 +30,12 @@ impl Corpus {
         let mut skipped = Vec::new();
         for added in self.windows.add_shards(paths, features) {
             match added {
-                // A shard is one recording: its windows are 0, 1, ... of it.
+                // A shard is one recording: its windows are listed as `WindowSpec::windows` lists them.
                 Ok((robot, new)) => {
-                    for (window, i) in new.enumerate() {
+                    let offsets = self.windows.spec.offsets().count();
+                    for (segment, i) in segments(new.len(), offsets).into_iter().zip(new) {
                         let trajectory = self.windows.trajectories[i];
-                        match rule.side(Origin { robot, trajectory, window: window as u32 }) {
+                        match rule.side(Origin { robot, trajectory, segment }) {
                             Split::Train => self.train.push(i),
                             Split::Validation => self.validation.push(i),
                         }
