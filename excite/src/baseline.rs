@@ -12,8 +12,8 @@ use crate::sampler::Sampler;
 /// Random multi-sines drawn per comparison (alone, and sets of as many as the design has trajectories).
 pub const DRAWS: usize = 20;
 
-/// Shares of each joint's bounds a multi-sine is scaled to: the speed and position room (the classical recipe's
-/// 95 % and 96 %, a margin for what happens between samples), and all of the acceleration limit.
+/// Shares of each joint's bounds a multi-sine is scaled to: the classical recipe's 95 % of the speed and 96 % of the
+/// position room, and all of the acceleration limit.
 const SPEED_SHARE: f64 = 0.95;
 const ROOM_SHARE: f64 = 0.96;
 
