@@ -153,7 +153,8 @@ mod tests {
     fn each_rule_holds_out_its_unit_whole_and_near_the_fraction() {
         let grid: Vec<Origin> = (0..400u64)
             .flat_map(|robot| {
-                (0..16u32).flat_map(move |trajectory| (0..5u32).map(move |segment| Origin { robot, trajectory, segment }))
+                (0..16u32)
+                    .flat_map(move |trajectory| (0..5u32).map(move |segment| Origin { robot, trajectory, segment }))
             })
             .collect();
         for by in [HoldOut::Robots, HoldOut::Trajectories, HoldOut::Windows] {
