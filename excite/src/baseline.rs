@@ -50,18 +50,13 @@ pub(crate) fn fitted(sampler: &mut Sampler<'_>, mut m: MultiSine) -> Option<(Mul
         }
         m.scale[j] *= scale;
     }
-    for _ in 0..EFFORT_STEPS {
-        if sampler.sample(&m, false).1[3] <= 1.0 {
-            let information = sampler.sample(&m, true).0;
-            return Some((m, information));
-        }
-        m.scale.iter_mut().for_each(|c| *c *= EFFORT_STEP);
-    }
-    None
+    let shrink = |m: &mut MultiSine| m.scale.iter_mut().for_each(|c| *c *= EFFORT_STEP);
+    let (m, information, _) = sampler.shrink_until(m, MultiSine::clone, shrink, EFFORT_STEPS, |p| p[3] <= 1.0)?;
+    Some((m, information))
 }
 
 /// [`DRAWS`] multi-sines alone and [`DRAWS`] sets of `count`, drawn from `seed`'s own streams, judged on `base`.
-/// Draws that cannot be fitted are drawn again (at most as many times again); `None` if too few fit.
+/// A draw that cannot be fitted is drawn again, at most `2 DRAWS (count + 1)` times; `None` if none of those fits.
 pub(crate) fn multisines(sampler: &mut Sampler<'_>, base: &Base, count: usize, seed: u64) -> Option<MultiSines> {
     let duration = sampler.period;
     let start = sampler.bounds.start.clone();

@@ -128,20 +128,14 @@ pub fn design_with(
     let bounds = Bounds::new(model, options)?;
     let mut sampler = Sampler::new(model, &bounds, collision, options, options.rate);
     let scales: Vec<f64> = sampler.scales.iter().copied().collect();
-    let p = scales.len();
-    let sum = |c: &[Candidate]| c.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
     let mut current = random_starts(&mut sampler, options)?;
-    let base = Base::of(&sum(&current));
+    let base = Base::of(&together(&current, scales.len()));
 
-    // Each trajectory in turn improves the set's D-optimality with the others held.
     let (searched, priced) =
         (options.count * options.evaluations, options.count * (options.evaluations / LOOSER_SHARE));
-    for k in 0..options.count {
-        let others = sum(&current) - &current[k].information;
-        let mut rng = Rng::stream(options.seed, &[k as u64, 1]);
-        let report = |e: usize| progress(k * options.evaluations + e, searched + priced);
-        current[k] = improve(&mut sampler, options.evaluations, &base, &others, current[k].clone(), &mut rng, report);
-    }
+    improve_each(&mut sampler, &mut current, options.evaluations, &base, (options.seed, SEARCH), |e| {
+        progress(e, searched + priced)
+    });
     // The effort, not a trigonometric polynomial, is checked again at 1 kHz (the rate drivers run at), and so is
     // self-collision: a point of the arm moves millimetres between samples there, so what passes there passes in
     // between.
@@ -151,7 +145,7 @@ pub fn design_with(
         let f = sampler.series(&c.x);
         c.information = sampler.sample(&f, true).0;
     }
-    let information = sum(&current);
+    let information = together(&current, scales.len());
     let multisines = multisines(&mut sampler, &base, options.count, options.seed);
     let looser = looser(model, collision, options, &base, &current, |e| progress(searched + e, searched + priced))?;
     let clearance = collision.map(|check| {
@@ -194,21 +188,41 @@ fn looser(
     options: &Options,
     base: &Base,
     design: &[Candidate],
-    mut progress: impl FnMut(usize),
+    progress: impl FnMut(usize),
 ) -> Result<Quality, ExciteError> {
     let looser = Options { acceleration: options.acceleration.iter().map(|a| LOOSER * a).collect(), ..options.clone() };
     let bounds = Bounds::new(model, &looser)?;
     let mut sampler = Sampler::new(model, &bounds, collision, options, options.rate);
     let mut set = design.to_vec();
-    let sum = |set: &[Candidate]| set.iter().skip(1).fold(set[0].information.clone(), |acc, c| acc + &c.information);
+    improve_each(&mut sampler, &mut set, options.evaluations / LOOSER_SHARE, base, (options.seed, PRICING), progress);
+    Ok(Quality::of(base, &together(&set, base.basis.nrows())))
+}
+
+/// The random streams of the search and of the looser limit's pricing (per trajectory `k`: `[k, stream]`).
+const SEARCH: u64 = 1;
+const PRICING: u64 = 3;
+
+/// Each trajectory of `set` in turn improved by [`improve`] with the others held, `evaluations` candidates each, its
+/// steps drawn from the stream `[k, stream]` of `seed`; `progress(done)` counts the candidates of all of them.
+fn improve_each(
+    sampler: &mut Sampler<'_>,
+    set: &mut [Candidate],
+    evaluations: usize,
+    base: &Base,
+    (seed, stream): (u64, u64),
+    mut progress: impl FnMut(usize),
+) {
     for k in 0..set.len() {
-        let others = sum(&set) - &set[k].information;
-        let mut rng = Rng::stream(options.seed, &[k as u64, 3]);
-        let evaluations = options.evaluations / LOOSER_SHARE;
+        let others = together(set, base.basis.nrows()) - &set[k].information;
+        let mut rng = Rng::stream(seed, &[k as u64, stream]);
         let report = |e: usize| progress(k * evaluations + e);
-        set[k] = improve(&mut sampler, evaluations, base, &others, set[k].clone(), &mut rng, report);
+        set[k] = improve(sampler, evaluations, base, &others, set[k].clone(), &mut rng, report);
     }
-    Ok(Quality::of(base, &sum(&set)))
+}
+
+/// The information of all of `set` together (`p` parameters).
+fn together(set: &[Candidate], p: usize) -> DMatrix<f64> {
+    set.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information)
 }
 
 /// Random series drawn per trajectory for its start; the best (with the starts before it) is kept.
@@ -239,7 +253,7 @@ fn random_starts(sampler: &mut Sampler<'_>, options: &Options) -> Result<Vec<Can
         }
         drawn.iter().for_each(|c| everything += &c.information);
         let base = Base::of(&everything);
-        let held = current.iter().fold(DMatrix::zeros(p, p), |acc, c| acc + &c.information);
+        let held = together(&current, p);
         let best = drawn.into_iter().max_by(|a, b| {
             let judge = |c: &Candidate| Quality::of(&base, &(&held + &c.information)).log_det;
             judge(a).total_cmp(&judge(b))
@@ -306,9 +320,9 @@ fn check(model: &Model, options: &Options) -> Result<(), ExciteError> {
 /// weakest trajectory alone from 2.2x to 2.7x the best random multi-sine's covariance trace, the set unchanged.
 const ALONE: f64 = 0.5;
 
-/// The (1+1) evolution strategy from `start`: a Gaussian step relative to each joint's coefficients' size, kept when the
-/// set's D-optimality (with `others` held) plus [`ALONE`] times the trajectory's own rises; the step grows on success and shrinks on failure (Rechenberg's
-/// rule, roughly one success in five at equilibrium).
+/// The (1+1) evolution strategy from `start`: a Gaussian step relative to each joint's coefficients' size, kept when
+/// the set's D-optimality (with `others` held) plus [`ALONE`] times the trajectory's own rises; the step grows on
+/// success and shrinks on failure (Rechenberg's rule, roughly one success in five at equilibrium).
 fn improve(
     sampler: &mut Sampler<'_>,
     evaluations: usize,

@@ -182,18 +182,23 @@ impl<'a> Sampler<'a> {
     /// motion.
     pub(crate) fn free(&mut self, mut c: Candidate) -> Result<Candidate, Option<(usize, usize)>> {
         let per_joint = Fourier::free_per_joint(self.harmonics);
-        let mut contact = None;
+        let (mut contact, mut shrunk) = (None, false);
         for _ in 0..8 {
             contact = self.contact(&self.series(&c.x));
-            let Some((a, b)) = contact else { return Ok(c) };
+            let Some((a, b)) = contact else {
+                // The information of the motion kept, summed once, not at every shrink on the way.
+                if shrunk {
+                    c.information = self.sample(&self.series(&c.x), true).0;
+                }
+                return Ok(c);
+            };
             // Body k is link k's (0: the base), moved by joints 0..k: joints a..b move b relative to a.
-            let mut x = c.x.clone();
-            x[a * per_joint..b * per_joint].iter_mut().for_each(|v| *v *= 0.8);
-            let (information, peaks) = self.sample(&self.series(&x), true);
-            if peaks.iter().any(|&p| p > 1.0 + 1e-9) {
+            c.x[a * per_joint..b * per_joint].iter_mut().for_each(|v| *v *= 0.8);
+            c.peaks = self.sample(&self.series(&c.x), false).1;
+            if c.peaks.iter().any(|&p| p > 1.0 + 1e-9) {
                 return Err(None);
             }
-            c = Candidate { x, information, peaks };
+            shrunk = true;
         }
         Err(contact)
     }
@@ -285,12 +290,38 @@ impl<'a> Sampler<'a> {
             }
             xs[j * per_joint..(j + 1) * per_joint].iter_mut().for_each(|v| *v /= peak);
         }
-        for _ in 0..EFFORT_STEPS {
-            if self.sample(&self.series(&xs), false).1.iter().all(|&p| p <= 1.0 + 1e-9) {
-                let (information, peaks) = self.sample(&self.series(&xs), true);
-                return Some(Candidate { x: xs, information, peaks });
+        let (period, start, harmonics) = (self.period, self.bounds.start.as_slice(), self.harmonics);
+        let series = |x: &Vec<f64>| Fourier::from_free(period, start, harmonics, x);
+        let shrink = |x: &mut Vec<f64>| x.iter_mut().for_each(|v| *v *= EFFORT_STEP);
+        let fits = |peaks: &[f64; 4]| peaks.iter().all(|&p| p <= 1.0 + 1e-9);
+        let (x, information, peaks) = self.shrink_until(xs, series, shrink, EFFORT_STEPS, fits)?;
+        Some(Candidate { x, information, peaks })
+    }
+
+    /// `state`, or `state` put through `shrink` (at most `steps - 1` times), until the peaks of its `motion` `fits`
+    /// (the effort, with gravity in it, does not scale in proportion: it is found by steps), with that motion's
+    /// information and peaks; `None` if it never fits. The first try sums the information as it goes (most fit at
+    /// once); after it, the peaks alone are sampled until one fits.
+    pub(crate) fn shrink_until<T, M: Motion>(
+        &mut self,
+        mut state: T,
+        motion: impl Fn(&T) -> M,
+        shrink: impl Fn(&mut T),
+        steps: usize,
+        fits: impl Fn(&[f64; 4]) -> bool,
+    ) -> Option<(T, DMatrix<f64>, [f64; 4])> {
+        for step in 0..steps {
+            let m = motion(&state);
+            if step == 0 {
+                let (information, peaks) = self.sample(&m, true);
+                if fits(&peaks) {
+                    return Some((state, information, peaks));
+                }
+            } else if fits(&self.sample(&m, false).1) {
+                let (information, peaks) = self.sample(&m, true);
+                return Some((state, information, peaks));
             }
-            xs.iter_mut().for_each(|v| *v *= EFFORT_STEP);
+            shrink(&mut state);
         }
         None
     }
