@@ -13,10 +13,10 @@ use std::path::{Path, PathBuf};
 
 use common::dynforge;
 use dynforge_identify::calibrate::{Identification, Options, held_out, identify_logs};
-use dynforge_identify::drive::{Drive, identified};
 use dynforge_identify::signals::{Conditioning, EffortConvention};
 use dynforge_recording::Reading;
 use dynforge_recording::log::read_log;
+use dynforge_robot::drive::{Drive, identified};
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
 use serde_json::{Value, json};
@@ -246,8 +246,8 @@ fn the_panda_s_rotor_inertia_and_torque_offsets_are_identified() {
 /// gap) and the clean log's still finds both: the lower is taken on both, and one of them says so.
 #[test]
 fn a_posterior_with_two_optima_is_reported_with_both() {
-    use dynforge_identify::consistent::CoordinatePrior;
     use dynforge_proto::spread::Spread;
+    use dynforge_robot::prior::CoordinatePrior;
     let Some(py) = dynforge_testkit::reference_python() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let f = Harness::new(py, tmp.path(), &UR5);

@@ -20,11 +20,11 @@ use std::process::Command;
 
 use anyhow::{Context, Result, bail};
 use dynforge_identify::calibrate::Kind;
-use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_proto::spread::Spread;
 use dynforge_recording::Reading;
 use dynforge_recording::log::read_log;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
+use dynforge_robot::prior::CoordinatePrior;
 use dynforge_robot::rng::Rng;
 use dynforge_testkit::arms::{Arm, Harness, PANDA, UR5};
 use serde_json::{Value, json};

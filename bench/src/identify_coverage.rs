@@ -22,14 +22,14 @@ use anyhow::{Context, Result, bail};
 use dynforge_identify::calibrate::family::Degradation;
 use dynforge_identify::calibrate::identify_read;
 use dynforge_identify::calibrate::{Decided, Identification, Options, identify_logs};
-use dynforge_identify::consistent::CoordinatePrior;
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
-use dynforge_identify::standard::COORDINATES;
 use dynforge_proto::spread::Spread;
 use dynforge_recording::Reading;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{Log, read_log, read_logs};
+use dynforge_robot::prior::CoordinatePrior;
 use dynforge_robot::rng::Rng;
+use dynforge_robot::spatial::log_cholesky::COORDINATES;
 use dynforge_testkit::arms::{Arm, Harness, LogKind, PANDA, UR5};
 
 #[global_allocator]

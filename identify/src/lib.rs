@@ -11,16 +11,15 @@
 //!   combination and the prior decides only what the data cannot see.
 //!
 //! - [`calibrate`] calibrates a robot description (URDF) to logs without a network: the physically consistent
-//!   parameters of every link and joint (`consistent`, over the log-Cholesky coordinates of `standard`), the URDF as
+//!   parameters of every link and joint (`consistent`, over `dynforge_robot::prior`'s log-Cholesky coordinates), the URDF as
 //!   prior, from logs conditioned as real drivers write them (`signals`, `rows`), with each joint's drive terms that
-//!   a URDF cannot state (`drive`: rotor inertia, a torque offset).
+//!   a URDF cannot state (`dynforge_robot::drive`: rotor inertia, a torque offset).
 //!
 //! The same normal equations score any parameter set's torque prediction on a recording ([`NormalEquations::nrmse`])
 //! without re-running the dynamics per parameter set.
 
 pub mod calibrate;
 pub mod consistent;
-pub mod drive;
 mod labels;
 mod latent;
 mod normal;
@@ -29,7 +28,6 @@ pub mod rows;
 mod samples;
 pub mod signals;
 mod solve;
-pub mod standard;
 
 pub use calibrate::{CalibrateError, Identification, Options, identify_logs};
 pub use labels::{labels_of_parameters, parameters_of_labels};
@@ -59,4 +57,12 @@ pub enum IdentifyError {
          record more motion of it, or weld it with --fix {joint}"
     )]
     TooFewRows { joint: String, rows: usize },
+}
+
+impl From<dynforge_robot::prior::PriorError> for IdentifyError {
+    fn from(e: dynforge_robot::prior::PriorError) -> Self {
+        match e {
+            dynforge_robot::prior::PriorError::NotPhysical(what) => IdentifyError::NotPhysical(what),
+        }
+    }
 }

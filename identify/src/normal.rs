@@ -5,8 +5,8 @@ use dynforge_robot::{Data, Model};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::drive::{DRIVE_PER_JOINT, drive_index, identified_len};
 use dynforge_recording::JointTrajectory;
+use dynforge_robot::drive::{DRIVE_PER_JOINT, drive_index, identified_len};
 
 use crate::samples::{REST_SPEED, for_each, row_support};
 

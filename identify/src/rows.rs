@@ -7,10 +7,10 @@ use dynforge_robot::{Data, Model, regressor, rnea};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::drive::{Drive, drive_index, identified_len};
 use crate::normal::{BlockedRows, NormalEquations};
 use crate::samples::{REST_SPEED, STOPPED_SPEED};
 use crate::signals::{Conditioned, EffortConvention};
+use dynforge_robot::drive::{Drive, drive_index, identified_len};
 
 /// Normal equations of one set of rows, one per effort convention (same regressor, other torques).
 #[derive(Debug, Clone)]

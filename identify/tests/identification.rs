@@ -252,8 +252,8 @@ fn robots_drawn_from_the_prior_are_calibrated_to_their_torques_from_clean_logs()
     // NOISE_FLOOR sqrt(120 / 72,000) = 4e-6 of the torque's RMS (the weights' noise is that floor here), and NRMSE,
     // against the torque's spread, under 1e-5 for joints whose torque is up to half gravity's mean.
     use dynforge_identify::calibrate::{NOISE_FLOOR, Options, identify_logs};
-    use dynforge_identify::consistent::CoordinatePrior;
     use dynforge_proto::spread::Spread;
+    use dynforge_robot::prior::CoordinatePrior;
     let dir = tempfile::tempdir().unwrap();
     for id in 0..8u64 {
         let nominal = robot(20 + id);

@@ -19,6 +19,7 @@
 #[cfg(feature = "collision")]
 pub mod collision;
 pub mod data;
+pub mod drive;
 pub mod dynamics;
 pub mod generator;
 pub mod jacobian;
@@ -26,6 +27,7 @@ pub mod kinematics;
 pub mod mjcf;
 pub mod model;
 pub mod parameters;
+pub mod prior;
 pub mod rng;
 pub mod spatial;
 pub mod summary;

@@ -1,5 +1,5 @@
 //! The jobs of a robot's family (`generate --urdf`): robot `r` is a variant of the run's URDF, its inertial
-//! parameters and friction drawn around the URDF's with `identify`'s prior (every draw a physical body), and
+//! parameters and friction drawn around the URDF's with the robot's prior (`dynforge_robot::prior`) (every draw a physical body), and
 //! trajectory `t` is excitation `t` followed by the same controller and failure checks as the generator's robots.
 //! Shards carry the variant's URDF and its standard parameters as labels ([`standard_names`]).
 //!
@@ -10,7 +10,6 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use dynforge_identify::consistent::{CoordinatePrior, friction_coordinate};
 use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
@@ -18,6 +17,7 @@ use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
 use dynforge_proto::sim::EngineKind;
 use dynforge_proto::spread::Spread;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
+use dynforge_robot::prior::{CoordinatePrior, PriorError, friction_coordinate};
 use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::spatial::Se3;
 use dynforge_robot::urdf::{Unsplit, Welds, parse_welded, patch_welded};
@@ -37,7 +37,7 @@ pub enum FamilySetupError {
     #[error(transparent)]
     Model(#[from] ModelError),
     #[error("the URDF's inertials are not physical bodies: {0}")]
-    Prior(#[from] dynforge_identify::IdentifyError),
+    Prior(#[from] PriorError),
     #[error("{file}: joint '{joint}' is {why}, which the {engine} engine does not simulate (--engine native does)")]
     Engine { file: String, joint: String, why: &'static str, engine: &'static str },
     #[error("{file} moves joints {found:?}, the URDF (with its welds) has {expected:?}")]
@@ -190,7 +190,7 @@ impl FamilyRunner {
     }
 
     /// Variant `robot` of the dataset of `seed`.
-    pub fn variant(&self, seed: u64, robot: u64) -> Result<Model, dynforge_identify::IdentifyError> {
+    pub fn variant(&self, seed: u64, robot: u64) -> Result<Model, PriorError> {
         let mut rng = Rng::stream(seed, &[domain::FAMILY, robot]);
         self.prior.draw_variant(&self.nominal, || rng.normal())
     }

@@ -33,14 +33,13 @@ use dynforge_recording::Reading;
 use dynforge_recording::log::{Log, read_logs, still_joints};
 use dynforge_recording::{JointTrajectory, ReadError};
 use dynforge_robot::Model;
-use dynforge_robot::model::{Friction, Inertial};
+use dynforge_robot::drive::{Drive, drive_index, drives, with_identified};
 use dynforge_robot::parameters::dynamic_parameters;
-use dynforge_robot::spatial::Inertia;
+use dynforge_robot::prior::{self as coordinates, CoordinatePrior};
 use nalgebra::{DMatrix, DVector};
 
 use crate::IdentifyError;
-use crate::consistent::{self, CoordinatePrior};
-use crate::drive::{Drive, drive_index, drives};
+use crate::consistent;
 use crate::normal::NormalEquations;
 use crate::rows::{Residual, RowSums, residuals};
 use crate::signals::{
@@ -521,7 +520,7 @@ fn fit(
     let mut solution = consistent::solve(ne, &weights, &prior, &prior.mean)?;
     let mut measured = vec![ResidualStats::default(); n];
     for _ in 0..2 {
-        let pi = consistent::parameters(n, &solution.x);
+        let pi = coordinates::parameters(n, &solution.x);
         let calibrated = model_with(model, &pi)?;
         measured = residual_noise((&calibrated, &drives(n, &pi)), logs, velocity, convention);
         weights = (0..n).map(|j| weight(j, measured[j].std.powi(2), measured[j].time_of_rows)).collect();
@@ -536,7 +535,7 @@ fn fit(
         (0..n).map(|j| weights[j] * (floor(j) / measured[j].std.max(f64::MIN_POSITIVE)).max(1.0)).collect();
     solution.covariance =
         sandwich(&solution, ne, &at_floor, &prior, (model, logs), (velocity, convention), &measured)? + &optima.between;
-    let pi = consistent::parameters(n, &solution.x);
+    let pi = coordinates::parameters(n, &solution.x);
     let calibrated = model_with(model, &pi)?;
     let noise = measured.iter().map(|m| m.std).collect();
     let correlation = measured.iter().map(|m| m.time).collect();
@@ -588,7 +587,7 @@ fn sandwich(
     measured: &[ResidualStats],
 ) -> Result<DMatrix<f64>, IdentifyError> {
     let n = model.dof();
-    let pi = DVector::from_vec(consistent::parameters(n, &solution.x));
+    let pi = DVector::from_vec(coordinates::parameters(n, &solution.x));
     let slowest = measured.iter().map(|m| m.time).fold(1.0f64, f64::max);
     let stretches = noise_blocks(logs);
     let block = ((SANDWICH_BLOCK * slowest).ceil() as usize).max(100);
@@ -609,7 +608,7 @@ fn sandwich(
         return Ok(solution.covariance.clone());
     }
     meat *= ne.rows() as f64 / used as f64;
-    let jac = consistent::jacobian(n, &solution.x);
+    let jac = coordinates::jacobian(n, &solution.x);
     let precision = prior.precision();
     let c = &solution.covariance;
     Ok(c * (jac.transpose() * meat * &jac + precision) * c)
@@ -624,21 +623,8 @@ fn ne_joint_rss(ne: &NormalEquations, j: usize, pi: &[f64]) -> f64 {
 
 /// `model` with the dynamic parameters `pi` (physical by construction: the consistent search's; drive terms after
 /// them, which a URDF cannot hold, are left out).
-pub(crate) fn model_with(model: &Model, pi: &[f64]) -> Result<Model, IdentifyError> {
-    let n = model.dof();
-    let inertials: Vec<Inertial> = (0..n)
-        .map(|l| {
-            let p: [f64; 10] = pi[10 * l..10 * (l + 1)].try_into().expect("10 parameters per link");
-            Inertial::from_spatial(&Inertia::from_params(&p))
-        })
-        .collect();
-    let friction: Vec<Friction> = (0..n)
-        .map(|j| {
-            let at = friction_index(n, j);
-            Friction { coulomb: pi[at], viscous: pi[at + 1] }
-        })
-        .collect();
-    model.with_dynamics(&inertials, &friction).map_err(|e| IdentifyError::NotPhysical(e.to_string()))
+fn model_with(model: &Model, pi: &[f64]) -> Result<Model, IdentifyError> {
+    with_identified(model, pi).map_err(|e| IdentifyError::NotPhysical(e.to_string()))
 }
 
 /// An error when a joint's residual is far above its noise floor (a model that does not explain the log).

@@ -7,12 +7,13 @@ use dynforge_robot::Model;
 use dynforge_robot::parameters::dynamic_parameters;
 use nalgebra::{DMatrix, Matrix3};
 
-use crate::consistent::{CoordinatePrior, Solution, drive_coordinate, friction_coordinate, link_coordinate};
-use crate::drive::{Drive, identified};
+use crate::consistent::Solution;
 use crate::normal::NormalEquations;
 use crate::signals::{EffortConvention, VelocityChoice, VelocitySource, effort_scatter};
 use crate::solve::LeastSquares;
-use crate::standard::{self, COORDINATES};
+use dynforge_robot::drive::{Drive, identified};
+use dynforge_robot::prior::{CoordinatePrior, drive_coordinate, friction_coordinate, link_coordinate};
+use dynforge_robot::spatial::log_cholesky::{self as standard, COORDINATES};
 
 /// What decided a parameter: the torques (its posterior spread is under half the prior's) or, when the logs cannot
 /// tell it, the prior (the URDF's value).
@@ -599,11 +600,11 @@ mod tests {
         let theta = [0.3, -1.0, -1.2, -1.4, 0.01, -0.02, 0.005, 0.05, -0.02, 0.1];
         let base = DMatrix::from_diagonal_element(COORDINATES, COORDINATES, 1e-6);
         let mut com = base.clone();
-        for k in crate::standard::T {
+        for k in standard::T {
             com[(k, k)] = 1e-2;
         }
         let mut mass = base.clone();
-        mass[(crate::standard::ALPHA, crate::standard::ALPHA)] = 1e-2;
+        mass[(standard::ALPHA, standard::ALPHA)] = 1e-2;
         let (b, c, m) = (reported_std(&theta, &base), reported_std(&theta, &com), reported_std(&theta, &mass));
         let got = link_std(&theta, &com, &mass);
         for k in 0..10 {

@@ -13,6 +13,7 @@
 
 mod articulated;
 mod inertia;
+pub mod log_cholesky;
 mod se3;
 mod vector;
 

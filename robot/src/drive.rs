@@ -9,7 +9,10 @@
 //! zero.
 
 use dynforge_proto::params::num_params;
-use dynforge_robot::Model;
+
+use crate::Model;
+use crate::model::ModelError;
+use crate::parameters::with_dynamic_parameters;
 
 /// Drive parameters per joint, after all of the robot's: `[armature, offset]` for joint 0, then joint 1, ...
 pub const DRIVE_PER_JOINT: usize = 2;
@@ -61,6 +64,12 @@ pub fn drives(n: usize, pi: &[f64]) -> Vec<Drive> {
             }
         })
         .collect()
+}
+
+/// A copy of `model` with the robot's part of an identified vector `pi` (the drives' terms after it are left out: a
+/// model's links and joints cannot hold them).
+pub fn with_identified(model: &Model, pi: &[f64]) -> Result<Model, ModelError> {
+    with_dynamic_parameters(model, &pi[..num_params(model.dof()).min(pi.len())])
 }
 
 /// The identified vector of the robot's parameters `robot` and the drives `drives`.

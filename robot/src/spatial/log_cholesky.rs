@@ -1,4 +1,4 @@
-//! A link's inertial parameters in the coordinates identification searches: the log-Cholesky factor of its
+//! A link's inertial parameters in the coordinates identification searches and a family is drawn in: the log-Cholesky factor of its
 //! pseudo-inertia (Rucker & Wensing, "Smooth Parameterization of Rigid-Body Inertia", RA-L 2022).
 //!
 //! The 4x4 pseudo-inertia `J = [[Sigma, h], [h^T, m]]` (`Sigma = tr(I_o)/2 1 - I_o`, the second moments about the
@@ -18,7 +18,7 @@
 //! read directly: `m = e^(2a)`, the centre of mass is `t`, and `m V V^T` (`V` the upper 3x3 of `U / e^a`) is the
 //! second-moment matrix about the COM, so `d` are log radii of gyration.
 
-use dynforge_robot::spatial::Inertia;
+use crate::spatial::Inertia;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 /// Coordinates per link.
@@ -138,12 +138,12 @@ mod tests {
 
     #[test]
     fn every_coordinate_vector_is_a_physical_body() {
-        let mut rng = dynforge_robot::rng::Rng::stream(5, &[]);
+        let mut rng = crate::rng::Rng::stream(5, &[]);
         for _ in 0..1000 {
             let theta: Vec<f64> = (0..COORDINATES).map(|_| rng.uniform(-3.0, 3.0)).collect();
             let p = params(&theta);
-            let inertia = dynforge_robot::spatial::Inertia::from_params(&p);
-            dynforge_robot::model::check_physical(&inertia).unwrap_or_else(|e| panic!("{theta:?}: {e}"));
+            let inertia = crate::spatial::Inertia::from_params(&p);
+            crate::model::check_physical(&inertia).unwrap_or_else(|e| panic!("{theta:?}: {e}"));
         }
         // And a body that is not physical (a principal moment above the sum of the others) has none.
         let mut p = link();
