@@ -212,7 +212,7 @@ fn family_spreads(
         return Ok(spreads);
     }
     let shards = shards_by_robot(dir).with_context(|| format!("reading {}", dir.join(SHARDS).display()))?;
-    let bar = dynforge_display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
+    let bar = crate::display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
     bar.set_length(shards.len() as u64);
     let (mut pairs, mut refused) = (Vec::new(), 0);
     for (k, (r, mine)) in shards.iter().enumerate() {

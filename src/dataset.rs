@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 
+use crate::display::{Bars, STOP, catch_interrupts};
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use dynforge_coordinator::prune::prune;
@@ -11,7 +12,6 @@ use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::prepare::{ModelKind, prepare};
 use dynforge_dataset::window::WindowSpec;
 use dynforge_dataset::windows::{AROUND_THE_BEST, stats};
-use dynforge_display::{Bars, STOP, catch_interrupts};
 use dynforge_trainer::training::session::SessionObserver;
 
 #[derive(Subcommand)]

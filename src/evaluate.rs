@@ -9,7 +9,7 @@ use dynforge_trainer::checkpoint::Checkpoint;
 use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::training::session::Inputs;
 
-use dynforge_display::bar;
+use crate::display::bar;
 
 /// How many validation recordings and robots the checks take by default.
 pub const CHECKS: Checks = Checks { torque_recordings: 64, identify_robots: 32, spread_robots: 256 };

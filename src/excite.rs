@@ -90,7 +90,7 @@ pub fn run(args: ExciteArgs) -> Result<()> {
             args.rate
         );
     }
-    let bar = dynforge_display::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
+    let bar = crate::display::bar("{msg} [{bar:40}] {pos}/{len} candidates ({eta} left)");
     bar.set_message(format!("designing {} excitations of {}", options.count, model.name()));
     let collision = match args.no_collision {
         true => None,

@@ -3,11 +3,11 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use crate::display::GenerationDisplay;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
-use dynforge_display::GenerationDisplay;
 use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
@@ -180,7 +180,7 @@ pub fn status(args: StatusArgs) -> Result<()> {
 }
 
 pub fn verify(args: VerifyArgs) -> Result<()> {
-    let bar = dynforge_display::bar("{bar:40} {pos}/{len}");
+    let bar = crate::display::bar("{bar:40} {pos}/{len}");
     let report = verify::verify(&args.dir, |k, n| {
         bar.set_length(n as u64);
         bar.set_position(k as u64);
@@ -199,7 +199,7 @@ pub fn verify(args: VerifyArgs) -> Result<()> {
 }
 
 pub fn merge(args: MergeArgs) -> Result<()> {
-    let bar = dynforge_display::bar("{bar:40} {pos}/{len}");
+    let bar = crate::display::bar("{bar:40} {pos}/{len}");
     let merged = dynforge_coordinator::merge::merge(&args.parts, &args.out, |k, n| {
         bar.set_length(n as u64);
         bar.set_position(k as u64);

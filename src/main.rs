@@ -2,6 +2,7 @@
 
 mod calibrate;
 mod dataset;
+mod display;
 mod estimate;
 mod evaluate;
 mod excite;
@@ -138,7 +139,7 @@ fn main() -> std::process::ExitCode {
 /// that says where they stopped): scripts then tell a stopped run from a failed one by the exit status.
 fn interrupted(e: &anyhow::Error) -> bool {
     use std::sync::atomic::Ordering;
-    dynforge_display::STOP.load(Ordering::Relaxed)
+    crate::display::STOP.load(Ordering::Relaxed)
         || e.chain().any(|c| {
             matches!(
                 c.downcast_ref::<dynforge_coordinator::run::GenerateError>(),

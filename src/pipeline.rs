@@ -9,7 +9,7 @@ use dynforge_trainer::training::recipe::RecipeFlags;
 use dynforge_trainer::training::resumable;
 use dynforge_trainer::training::session::Session;
 
-use dynforge_display::{Bars, STOP, catch_interrupts};
+use crate::display::{Bars, STOP, catch_interrupts};
 
 #[derive(Args)]
 pub struct PipelineArgs {

@@ -9,7 +9,7 @@ use dynforge_trainer::model::Preset;
 use dynforge_trainer::sweep::Sweep;
 use dynforge_trainer::training::recipe::RecipeFlags;
 
-use dynforge_display::{Bars, STOP, catch_interrupts};
+use crate::display::{Bars, STOP, catch_interrupts};
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum GridArg {

@@ -8,7 +8,7 @@ use dynforge_trainer::model::Preset;
 use dynforge_trainer::training::recipe::RecipeFlags;
 use dynforge_trainer::training::session::Session;
 
-use dynforge_display::{Bars, STOP, catch_interrupts};
+use crate::display::{Bars, STOP, catch_interrupts};
 
 #[derive(Args)]
 pub struct TrainArgs {

@@ -1,5 +1,5 @@
 //! What dynforge's long commands show while they run: progress bars on a terminal and log lines when standard error
-//! is not one (a Slurm log, a pipe), so that the binary only says which display a command gets.
+//! is not one (a Slurm log, a pipe), so that each command only says which display it gets.
 
 mod bars;
 mod generation;
