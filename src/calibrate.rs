@@ -6,6 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::flags::{MAX_ROBOTS, weld, whole};
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_coordinator::lock::LockError;
@@ -17,7 +18,6 @@ use dynforge_identify::calibrate::{
 use dynforge_identify::signals::Conditioning;
 use dynforge_proto::content_hash;
 use dynforge_proto::family::DEFAULT_SPREAD;
-use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};

@@ -1,6 +1,7 @@
 //! `dynforge dataset`: what a dataset holds and how many windows each preprocessing geometry makes of it (`stats`);
 //! its training cache built ahead of training, and its shards pruned once cached (`prepare`).
 
+use crate::flags::Estimator;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 
@@ -29,7 +30,7 @@ pub struct PrepareArgs {
     dir: PathBuf,
     /// The estimator whose cache to build.
     #[arg(long, value_enum, default_value = "physics")]
-    model: ModelKind,
+    model: Estimator,
     /// Window geometry, as `train` takes it.
     #[arg(long = "window", value_name = "LEN:STRIDE:SSR", default_value = "64:64:16")]
     window: WindowSpec,
@@ -81,7 +82,8 @@ pub fn info(args: InfoArgs) -> Result<()> {
 fn prepare_cache(args: PrepareArgs) -> Result<()> {
     let spec = args.window;
     catch_interrupts();
-    if args.model == ModelKind::Physics {
+    let model = ModelKind::from(args.model);
+    if model == ModelKind::Physics {
         eprintln!("fitting the generator's parameter prior to {} robots", dynforge_dataset::evidence::PRIOR_ROBOTS);
     }
     let mut bars = Bars::new(1);
@@ -92,10 +94,10 @@ fn prepare_cache(args: PrepareArgs) -> Result<()> {
         !STOP.load(Ordering::Relaxed)
     };
     let held = if args.prune {
-        let pruned = prune(&args.dir, args.model, &spec, progress)?;
+        let pruned = prune(&args.dir, model, &spec, progress)?;
         format!("{}; {} shards pruned", pruned.cache, pruned.shards)
     } else {
-        prepare(&args.dir, args.model, &spec, progress)?.what
+        prepare(&args.dir, model, &spec, progress)?.what
     };
     drop(bars);
     println!("{}: {held}", args.dir.display());

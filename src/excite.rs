@@ -2,11 +2,11 @@
 
 use std::path::PathBuf;
 
+use crate::flags::{non_negative, positive, weld, whole};
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_excite::write::{summary, write_design};
 use dynforge_excite::{MAX_WRITTEN_SAMPLES, Options, SelfCollision, design_with, start_pose};
-use dynforge_proto::flags::{non_negative, positive, weld, whole};
 use dynforge_robot::urdf;
 
 #[derive(Args)]

@@ -1,14 +1,15 @@
 //! `dynforge generate | status | verify | worker`: datasets made by a coordinator and worker processes.
 
+use crate::flags::Engine;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use crate::display::GenerationDisplay;
+use crate::flags::{MAX_ROBOTS, weld, whole};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
-use dynforge_proto::flags::{MAX_ROBOTS, weld, whole};
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_proto::spread::Spread;
@@ -32,8 +33,8 @@ pub struct GenerateArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Simulation engine.
-    #[arg(long, value_enum, default_value_t = EngineKind::Native)]
-    engine: EngineKind,
+    #[arg(long, value_enum, default_value_t = Engine::Native)]
+    engine: Engine,
     /// Run only partition i of n (robots r with r % n == i), to split one dataset over several hosts.
     #[arg(long, default_value = "0/1")]
     partition: Partition,
@@ -98,7 +99,7 @@ pub struct WorkerArgs {
 
 pub fn generate(args: GenerateArgs) -> Result<()> {
     let generator = GeneratorConfig::load(args.config.as_deref())?;
-    let engine = args.engine;
+    let engine = EngineKind::from(args.engine);
     let job_timeout = match Duration::try_from_secs_f64(args.job_timeout) {
         Ok(d) if !d.is_zero() => d,
         _ => bail!("--job-timeout {}: expected a positive finite number of seconds", args.job_timeout),

@@ -2,11 +2,11 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::flags::positive;
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use dynforge_identify::calibrate::{Calibrated, Options, RunToRun, calibrate_to_urdf, check_output};
 use dynforge_identify::signals::{Conditioning, EffortConvention, VelocitySource};
-use dynforge_proto::flags::positive;
 use dynforge_proto::spread::Spread;
 use dynforge_recording::Reading;
 use dynforge_recording::table::ColumnMap;
@@ -22,8 +22,9 @@ pub struct IdentifyArgs {
     urdf: Option<PathBuf>,
     /// How far the URDF's values are trusted, relative: each mass and each inertia tensor's scale within ~this
     /// share (independently; the tensor's shape within half of it), centres of mass within this share of their
-    /// distance from the link's origin (at least 1 cm), friction within this share or 2 % of the joint's effort limit.
-    /// One number, or per kind (`0.5,com=0.1`; kinds mass, com, inertia, friction).
+    /// distance from the link's origin (at least 1 cm), friction within this share of its value, or of a typical
+    /// friction where the URDF states less (Coulomb: 10 % of the joint's effort limit; viscous: 20 % of it over the
+    /// speed limit). One number, or per kind (`0.5,com=0.1`; kinds mass, com, inertia, friction).
     #[arg(long, default_value_t = Spread::uniform(0.5))]
     spread: Spread,
     #[command(flatten)]

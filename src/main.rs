@@ -6,6 +6,7 @@ mod display;
 mod estimate;
 mod evaluate;
 mod excite;
+mod flags;
 mod generate;
 mod identify;
 mod pipeline;
@@ -17,7 +18,7 @@ mod train;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 // burn's attention allocates tensors above glibc's mmap threshold every step; mimalloc reuses them (measured ~45 %
-// faster training, ../docs/notes.md).
+// faster training, ../docs/development.md).
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

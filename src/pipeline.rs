@@ -2,10 +2,10 @@
 
 use std::path::PathBuf;
 
+use crate::flags::RecipeFlags;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_trainer::model::Preset;
-use dynforge_trainer::training::recipe::RecipeFlags;
 use dynforge_trainer::training::resumable;
 use dynforge_trainer::training::session::Session;
 

@@ -1,5 +1,6 @@
 //! `dynforge simulate`: one job by hand.
 
+use crate::flags::Engine;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -25,12 +26,12 @@ pub struct SimulateArgs {
     #[arg(long, short)]
     out: PathBuf,
     /// Simulation engine.
-    #[arg(long, value_enum, default_value_t = EngineKind::Native)]
-    engine: EngineKind,
+    #[arg(long, value_enum, default_value_t = Engine::Native)]
+    engine: Engine,
 }
 
 pub fn run(args: SimulateArgs) -> Result<()> {
-    let engine = args.engine;
+    let engine = EngineKind::from(args.engine);
     let sim = SimConfig { engine, ..SimConfig::default() };
     if sim.trajectory.waypoints <= args.trajectory as usize {
         anyhow::bail!(

@@ -2,12 +2,12 @@
 
 use std::path::PathBuf;
 
+use crate::flags::RecipeFlags;
 use anyhow::Result;
 use clap::{Args, ValueEnum};
 use dynforge_dataset::evaluation::sweep::Grid;
 use dynforge_trainer::model::Preset;
 use dynforge_trainer::sweep::Sweep;
-use dynforge_trainer::training::recipe::RecipeFlags;
 
 use crate::display::{Bars, STOP, catch_interrupts};
 

@@ -2,10 +2,10 @@
 
 use std::path::PathBuf;
 
+use crate::flags::RecipeFlags;
 use anyhow::Result;
 use clap::Args;
 use dynforge_trainer::model::Preset;
-use dynforge_trainer::training::recipe::RecipeFlags;
 use dynforge_trainer::training::session::Session;
 
 use crate::display::{Bars, STOP, catch_interrupts};

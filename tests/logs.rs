@@ -346,7 +346,7 @@ fn friction_s_run_to_run_share_is_measured_between_logs() {
         assert!((runs - want).abs() <= 1e-12 * want, "over runs {runs}, want {want}");
         share
     };
-    // One arm: the noisy logs' friction is within ~0.5 % (README), so what the estimator's truncation at zero leaves
+    // One arm: the noisy logs' friction is within ~0.5 % (docs/measurements.md), so what the estimator's truncation at zero leaves
     // is a few tenths of a percent.
     let s = share(&same);
     assert!(s < 0.015, "one arm's two logs: share {s}");

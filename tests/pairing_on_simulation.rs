@@ -33,6 +33,6 @@ fn true_parameters_reproduce_the_simulated_torques_on_every_joint() {
     // What the pairing leaves is second order in the step: the state at t_i stands for the span's mean state, an
     // error of (omega dt)^2 / 24 of the swinging part of the torque, ~1.7e-5 for the ~20 rad/s closed loop (measured:
     // <= 3e-6). Spans with stops and starts kept in, or the viscous force paired with `qd[i]`, would leave far more
-    // on some joint (`docs/notes.md`).
+    // on some joint (`docs/measurements.md`).
     assert!(worst < 2e-5, "worst joint's NRMSE of the true parameters: {worst:e}");
 }

@@ -2,7 +2,7 @@
 //! window) and from the cache, for a `generate` directory.
 //!
 //! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. Compare with the windows/s the model consumes in
-//! training (bench/training.sh; README, Benchmarks; figures in `docs/notes.md`).
+//! training (bench/training.sh; figures in `docs/measurements.md`).
 
 use std::time::Instant;
 

@@ -25,7 +25,7 @@ use crate::window::WindowSpec;
 /// viscous force paired with the span's mean velocity (`identify`'s pairing revision 2), the true parameters leave
 /// ~1e-7 to 3e-6 of each joint's torque spread on simulated data; 3e-5 keeps a margin above that residual, and a
 /// lower floor gains no more than the +-0.01 the small validation set moves by (pipeline, 48 robots: per-window R2
-/// 0.953 at 3e-5, 0.956 at 1e-5; every level in `docs/notes.md`). One level for all joints does worse: the wrists'
+/// 0.953 at 3e-5, 0.956 at 1e-5; every level in `docs/measurements.md`). One level for all joints does worse: the wrists'
 /// torques are two orders of magnitude below the shoulder's. A real robot's logs carry more (sensor noise,
 /// transmissions): its posterior is then overconfident, and the estimate's refinement by the log's own torques uses
 /// `identify`'s 1e-3 floor.

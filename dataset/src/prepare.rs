@@ -18,7 +18,6 @@ use crate::window::WindowSpec;
 
 /// Which estimator a run trains, hence which cache it reads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum ModelKind {
     /// Physics as input: what each window's torques identify (posterior of the generator's parameter prior),
     /// mapped to the labels by a network trained on generated robots.

@@ -24,7 +24,6 @@ pub fn split_of(seed: u64, robot: u64, fraction: f64) -> Split {
 
 /// What a split holds out for validation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum HoldOut {
     /// Whole robots.

@@ -201,7 +201,7 @@ pub struct Optima {
 /// The posterior can have more than one optimum within a unit or two of the objective: the UR5's forearm COM and the
 /// mass of the wrist at its far end trade along a first moment the torques see, and a URDF whose COM prior is wide
 /// (a COM stated far from the joint) lets the search from it end with the COM at the joint and the wrist twice as
-/// heavy, or at the truth (measured in docs/notes.md). A Laplace spread at either optimum is a twentieth of the
+/// heavy, or at the truth (measured in docs/identification.md). A Laplace spread at either optimum is a twentieth of the
 /// distance between them. Searches from draws of the prior find the others; the lowest objective is the MAP, and
 /// each other end that the way to every optimum kept so far leaves by rising ([`BARRIER`]) is an optimum, which adds
 /// its distance, weighted by its share, to the spread.

@@ -19,7 +19,7 @@ pub const NOISE_FLOOR: f64 = 1e-3;
 /// training robots' label correlations, the network's error correlations) would let the refinement trade labels
 /// along correlated directions into unphysical values that the URDF's projection then undoes; tying the
 /// generator's equal labels (`Ixx == Iyy` of every link) into one unknown scores worse on inertia. Both measured in
-/// `docs/notes.md`.
+/// `docs/training.md`.
 #[derive(Debug, Clone)]
 pub struct Prior {
     pub mean: [f64; NUM_LABELS],

@@ -36,14 +36,14 @@ pub const STOPPED_SPEED: f64 = 1e-9;
 /// Its own row has no model there, and the other joints' rows see the switch through the coupling (in our simulator
 /// the stop also lands the velocity on zero within a substep). Those spans are left out for every joint: a fraction
 /// of a percent of the samples, they carry nearly all the residual the true parameters leave (figures in
-/// `docs/notes.md`).
+/// `docs/measurements.md`).
 ///
 /// Pairing with acceleration: a logged effort is the torque applied over the *next* grid step (zero-order hold;
 /// our shards' contract, and what a motor driver does between two commands). The central difference
 /// `(qd[i+1] - qd[i-1]) / 2 dt` is the mean acceleration over `[t[i-1], t[i+1]]`, which the efforts held over those
 /// two steps produced: `tau[i-1]` and `tau[i]`. So the torque paired with it is their mean. Pairing it with `tau[i]`
 /// alone errs by half the change of torque over a step, which biases viscous friction and the wrists' inertia
-/// (`docs/notes.md`).
+/// (`docs/measurements.md`).
 ///
 /// Pairing with velocity: the mean torque over that span balances the *mean* viscous force over it, and the mean
 /// velocity over `[t[i-1], t[i+1]]` is exactly `(q[i+1] - q[i-1]) / 2 dt`, whatever the integrator did inside the

@@ -52,7 +52,7 @@ impl EffortConvention {
 /// The acceleration noise (from the position noise, after the filter) allowed, relative to the acceleration's own
 /// standard deviation. A lower cut-off smears each stick of Coulomb friction over more samples (left out, and what
 /// is left biased); a higher one adds noise to the regressor. On MuJoCo logs of the UR5 (2^17-count encoders, 1 %
-/// effort noise) 3 % (a cut-off of ~20 Hz) gave the best held-out torques (`docs/notes.md`).
+/// effort noise) 3 % (a cut-off of ~20 Hz) gave the best held-out torques (`docs/measurements.md`).
 pub const ACCELERATION_NOISE: f64 = 0.03;
 
 /// Range of cut-offs chosen from a log [Hz], and at most this share of the sampling rate.

@@ -8,7 +8,6 @@
 //! and what a job is with the messages about it between the coordinator and its workers (`job`).
 
 pub mod family;
-pub mod flags;
 pub mod fourier;
 pub mod generator;
 pub mod job;

@@ -42,7 +42,6 @@ impl Default for SimConfig {
 /// Which engine runs a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum EngineKind {
     /// Featherstone ABA + RK4 with exact stick/slip Coulomb friction (`dynforge_worker`'s own).
     Native,

@@ -8,8 +8,6 @@ use std::str::FromStr;
 
 use serde::{Deserialize, Serialize};
 
-use crate::flags::{FlagError, positive};
-
 /// Largest spread of any kind: a mass believed within a factor of e^3 (20) either way is no prior, and draws from
 /// a wider one are bodies no simulator steps (`generate --spread 100` failed every job).
 pub const MAX_SPREAD: f64 = 3.0;
@@ -73,20 +71,25 @@ impl fmt::Display for Spread {
     }
 }
 
+/// A spread refused, saying what a spread is.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct SpreadError(String);
+
 /// What `--spread` takes, for its errors.
 const FORMS: &str = "a positive number (at most 3) for every kind, or comma-separated kind=value (kinds: mass, com, inertia, \
                      friction) after an optional number for the rest, e.g. 0.3,com=0.1";
 
 impl FromStr for Spread {
-    type Err = FlagError;
+    type Err = SpreadError;
 
     /// `0.3`, `0.3,com=0.1` or `mass=0.2,com=0.1,inertia=0.3,friction=0.3`.
-    fn from_str(s: &str) -> Result<Self, FlagError> {
-        let refuse = |what: String| FlagError::from(format!("{what}: expected {FORMS}").as_str());
-        let number = |text: &str, what: &str| match positive(text) {
-            Ok(v) if v <= MAX_SPREAD => Ok(v),
-            Ok(v) => Err(refuse(format!("{what}: {v} is more than {MAX_SPREAD}"))),
-            Err(e) => Err(refuse(format!("{what}: {e}"))),
+    fn from_str(s: &str) -> Result<Self, SpreadError> {
+        let refuse = |what: String| SpreadError(format!("{what}: expected {FORMS}"));
+        let number = |text: &str, what: &str| match text.trim().parse::<f64>() {
+            Ok(v) if v > 0.0 && v <= MAX_SPREAD => Ok(v),
+            Ok(v) if v > MAX_SPREAD => Err(refuse(format!("{what}: {v} is more than {MAX_SPREAD}"))),
+            _ => Err(refuse(format!("{what}: expected a positive finite number"))),
         };
         let mut kinds: [Option<f64>; 4] = [None; 4];
         let mut rest = None;

@@ -16,7 +16,7 @@
 //! carrying up to 1 N m of Coulomb friction) the stiffness to push through friction; damping for the true inertia
 //! keeps the discrete 1 kHz loop stable: for the lightest wrist, `sqrt(Kp / I) dt` = 0.27 and `Kd dt / I` = 0.54.
 //! The integral term is kept as a torque, so gain changes are bumpless. Tuning (bench/simulation.sh, 100 robots):
-//! see the README.
+//! see docs/measurements.md.
 
 pub use dynforge_proto::sim::PidGains;
 use nalgebra::DMatrix;

@@ -136,7 +136,7 @@ fn logged_torque_matches_inverse_dynamics_of_the_logged_motion() {
 fn rapier_inverse_dynamics_residual_is_its_first_order_integration_error() {
     // rapier integrates with semi-implicit Euler substeps, so the same midpoint check leaves an O(h) residual:
     // quadrupling the substeps must cut it ~4x (accepted: 2.5-6x). Frictionless, under a varying torque, so the
-    // check isolates the integrator (rapier's dry-friction constraint is a separate model; see docs/notes.md).
+    // check isolates the integrator (rapier's dry-friction constraint is a separate model; see docs/generator.md).
     let model = frictionless(&robot(4));
     let residual = |substeps: usize| {
         let mut engine = RapierEngine::new(&model, 1e-3, substeps);

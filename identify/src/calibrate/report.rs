@@ -233,7 +233,7 @@ fn reported_std(theta: &[f64], cov: &DMatrix<f64>) -> [f64; 10] {
 /// A link's reported standard deviations at `theta`: the larger of the sandwich's (`sandwich`) and the Laplace
 /// covariance's (`laplace`), each parameter on its own. The sandwich's meat is measured from a few hundred blocks of
 /// the residual, and a covariance measured so is too small in some directions by its own sampling error (the Panda's
-/// noisy inertias: 2 points within two standard deviations, docs/notes.md); where the model's covariance is wider,
+/// noisy inertias: 2 points within two standard deviations, docs/identification.md); where the model's covariance is wider,
 /// it is kept. Friction is not a link's: there the sandwich is what corrects for a coloured residual.
 fn link_std(theta: &[f64], sandwich: &DMatrix<f64>, laplace: &DMatrix<f64>) -> [f64; 10] {
     let (s, l) = (reported_std(theta, sandwich), reported_std(theta, laplace));

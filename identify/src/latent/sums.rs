@@ -76,7 +76,7 @@ impl LatentSums {
     /// rounds from the floor; the residual is what neither the noise floor nor the prior's parameters explain:
     /// sensor noise, unmodelled dynamics). The evidence of a log that is noisier than the floor would otherwise be
     /// believed far beyond what it carries, which ruins the estimate of a noisy log (`dynforge-bench-noise`; figures
-    /// in `docs/notes.md`).
+    /// in `docs/measurements.md`).
     pub fn measured_noise(&self, floor: f64) -> Result<Vec<f64>, IdentifyError> {
         let mut variance = vec![0.0; self.joints.len()];
         for _ in 0..NOISE_ROUNDS {

@@ -53,7 +53,6 @@ pub struct TransformerConfig {
 
 /// Named architectures: the paper's, and the cheaper one measured to give more accuracy per CPU-hour.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Preset {
     /// 4 layers, 32 heads of width 4, 128 dims, a token per time step (the paper's best).
     Paper,

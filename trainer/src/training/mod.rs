@@ -53,7 +53,7 @@ pub struct TrainConfig {
     pub micro_batches: usize,
 }
 
-/// 4 parts of a 64-window batch measured fastest on 2 cores (bench/training.sh; figures in `docs/notes.md`): smaller
+/// 4 parts of a 64-window batch measured fastest on 2 cores (bench/training.sh; figures in `docs/measurements.md`): smaller
 /// parts keep the attention scores in cache.
 fn default_micro_batches() -> usize {
     4
