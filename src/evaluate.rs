@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::Args;
-use dynforge_dataset::evaluation::{Checks, Report, write};
+use dynforge_evaluation::{Checks, Report, write};
 use dynforge_trainer::checkpoint::Checkpoint;
 use dynforge_trainer::evaluation::evaluate_checkpoint;
 use dynforge_trainer::training::session::Inputs;

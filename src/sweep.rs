@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use crate::flags::RecipeFlags;
 use anyhow::Result;
 use clap::{Args, ValueEnum};
-use dynforge_dataset::evaluation::sweep::Grid;
+use dynforge_evaluation::sweep::Grid;
 use dynforge_trainer::model::Preset;
 use dynforge_trainer::sweep::Sweep;
 

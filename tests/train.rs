@@ -425,7 +425,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     // under the estimator's.
     let mut rec = dynforge_recording::read(&validation_shard, None).unwrap();
     let mut rng = dynforge_robot::rng::Rng::stream(7, &[]);
-    dynforge_dataset::evaluation::spread::add_effort_noise(&mut rec, 0.01, &mut rng);
+    dynforge_evaluation::spread::add_effort_noise(&mut rec, 0.01, &mut rng);
     let noisy_bag = dir.path().join("noisy.mcap");
     let urdf_text = dynforge_robot::urdf::to_string(&rec.model, &Default::default());
     dynforge_testkit::write_bag(&noisy_bag, &urdf_text, &rec.trajectory);

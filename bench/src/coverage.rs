@@ -14,7 +14,7 @@
 //! applies). Streams differ from `evaluate`'s validation noise, and so do the robots.
 
 use anyhow::{Context, Result, bail};
-use dynforge_dataset::evaluation::spread::{Noise, add_effort_noise};
+use dynforge_evaluation::spread::{Noise, add_effort_noise};
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::Recording;
 use dynforge_trainer::inference::Predictor;

@@ -13,10 +13,10 @@ use crate::model::NetworkConfig;
 use crate::training::recipe::Recipe;
 use crate::training::resumable;
 use crate::training::session::{Session, SessionError, SessionObserver};
-use dynforge_dataset::evaluation::Checks;
-use dynforge_dataset::evaluation::sweep::{ARCHITECTURE_GRID, DATASET_GRID, Grid, Row, tables};
 use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::window::WindowSpec;
+use dynforge_evaluation::Checks;
+use dynforge_evaluation::sweep::{ARCHITECTURE_GRID, DATASET_GRID, Grid, Row, tables};
 
 /// A sweep over `data` into `out`: one checkpoint per configuration (`out/NAME`), `base` for everything a grid does
 /// not set (the architecture grid trains transformers).
@@ -114,7 +114,7 @@ impl Sweep<'_> {
         let train_seconds = started.elapsed().as_secs_f64();
         let report = evaluate_checkpoint(&out, self.data, Some(trained.inputs), Checks::NONE, |_, _, _| {})
             .map_err(|e| SessionError::Setup(e.to_string()))?;
-        dynforge_dataset::evaluation::write(&out, &report).map_err(|e| self.io(e))?;
+        dynforge_evaluation::write(&out, &report).map_err(|e| self.io(e))?;
         let c = Checkpoint::read(&out)?;
         let (layers, heads, dim) = match &c.model {
             NetworkConfig::Transformer(m) => (m.layers, m.heads, m.d_model),

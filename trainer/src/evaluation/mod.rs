@@ -8,13 +8,13 @@ use std::path::Path;
 
 use dynforge_dataset::cache::evidence::PhysicsSet;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::evaluation::{Checks, Estimated, Estimator, EstimatorError, Report, Validation, per_robot_mean};
 use dynforge_dataset::examples::Examples;
 use dynforge_dataset::examples::corpus::Corpus;
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::normalize::Standardizer;
 use dynforge_dataset::split::{Split, SplitRule};
 use dynforge_dataset::window::WindowSpec;
+use dynforge_evaluation::{Checks, Estimated, Estimator, EstimatorError, Report, Validation, per_robot_mean};
 use dynforge_proto::NUM_LABELS;
 use dynforge_recording::Recording;
 use dynforge_recording::dataset::dataset_robot;
@@ -61,7 +61,7 @@ pub fn evaluate_checkpoint(
     let v = validate(&predictor, data, inputs, &mut progress)?;
     plot(dir, &v, &predictor.checkpoint.standardizer())?;
     let name = (dir.display().to_string(), predictor.checkpoint.epoch);
-    let r = dynforge_dataset::evaluation::report(&predictor, (&name.0, name.1), &v, data, checks, progress)?;
+    let r = dynforge_evaluation::report(&predictor, (&name.0, name.1), &v, data, checks, progress)?;
     Ok(r)
 }
 

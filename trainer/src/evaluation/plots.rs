@@ -76,7 +76,7 @@ pub fn predicted_vs_true(
     std: &[f64; NUM_LABELS],
 ) -> Result<(), PlotError> {
     font();
-    let groups = dynforge_dataset::evaluation::tables::GROUPS;
+    let groups = dynforge_evaluation::tables::GROUPS;
     let root = BitMapBackend::new(path, (1500, 320)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| fail(path, e))?;
     for ((_, name, kinds), area) in groups.iter().zip(root.split_evenly((1, groups.len()))) {

@@ -14,14 +14,14 @@ use dynforge_robot::Model;
 
 use dynforge_dataset::cache::CacheError;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::evaluation::EvaluationError;
-use dynforge_dataset::evaluation::recording::{RecordingError, physical_parameters};
-use dynforge_dataset::evaluation::spread::{
-    Calibration, Noise, SpreadCalibration, between_log_counts, estimator_spread, refine_recordings, refined_noise,
-};
 use dynforge_dataset::evidence::{EvidenceError, NOISE_FLOOR, features, label_posterior, measured_evidence};
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::windows::{row_width, windows};
+use dynforge_evaluation::EvaluationError;
+use dynforge_evaluation::recording::{RecordingError, physical_parameters};
+use dynforge_evaluation::spread::{
+    Calibration, Noise, SpreadCalibration, between_log_counts, estimator_spread, refine_recordings, refined_noise,
+};
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::evaluation::plots::PlotError;
@@ -337,7 +337,7 @@ impl Predictor {
     pub fn refine(&self, recs: &[&Recording], e: &Estimate) -> Result<Refinement, InferenceError> {
         let p = recs.first().ok_or(InferenceError::NoRecording)?;
         let r = refine_recordings(recs, &e.labels, &e.spread)?;
-        // The posterior as the validation robots calibrated it (`dynforge_dataset::evaluation::spread`).
+        // The posterior as the validation robots calibrated it (`dynforge_evaluation::spread`).
         let calibration = self.validated.as_ref().and_then(|v| v.calibration.as_ref());
         let refined_calibration = calibration.map(|c| c.at(recs.len()).1);
         let noise = refined_noise(&r.refined, e.assumed_noise());

@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use dynforge_dataset::evaluation::recording::recording_error;
-use dynforge_dataset::evaluation::spread::Noise;
+use dynforge_evaluation::recording::recording_error;
+use dynforge_evaluation::spread::Noise;
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_recording::Recording;
 use dynforge_robot::{parameters, urdf};

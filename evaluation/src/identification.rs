@@ -17,11 +17,11 @@ use dynforge_recording::{Recording, read};
 use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
-use super::recording::{normal_equations, physical_parameters, recording_error};
-use super::tables::group_r2;
-use super::torque::{TorqueRow, table};
-use super::{Estimator, EvaluationError};
-use crate::metrics::{Scores, score};
+use crate::recording::{normal_equations, physical_parameters, recording_error};
+use crate::tables::group_r2;
+use crate::torque::{TorqueRow, table};
+use crate::{Estimator, EvaluationError};
+use dynforge_dataset::metrics::{Scores, score};
 use dynforge_proto::parallel::map_in_order;
 
 /// What the identification check reports.

@@ -1,4 +1,4 @@
-//! Scoring an estimator the way the paper reports it (R2 and RMSE per label, `crate::metrics`, laid out as its three
+//! Scoring an estimator the way the paper reports it (R2 and RMSE per label, `dynforge_dataset::metrics`, laid out as its three
 //! tables, [`tables`]) and past it: scores of per-robot estimates (a robot's windows averaged, or its recordings'
 //! evidence summed, as a user with several logs of one robot would), the torque check ([`torque`]), and physics
 //! beside the network ([`identification`]). Everything here works through [`Estimator`], so evaluation needs no ML
@@ -21,9 +21,9 @@ use dynforge_recording::{Recording, read};
 use dynforge_robot::parameters::dynamic_parameters;
 use serde::{Deserialize, Serialize};
 
-use crate::metrics::{Scores, score};
-use crate::split::{HoldOut, SplitRule};
-use crate::window::WindowSpec;
+use dynforge_dataset::metrics::{Scores, score};
+use dynforge_dataset::split::{HoldOut, SplitRule};
+use dynforge_dataset::window::WindowSpec;
 use identification::IdentificationCheck;
 use recording::{RecordingError, normal_equations, physical_parameters};
 use spread::SpreadCalibration;

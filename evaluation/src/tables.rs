@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use dynforge_proto::{LABELS, LabelKind};
 
-use crate::metrics::{Scores, TargetScore};
+use dynforge_dataset::metrics::{Scores, TargetScore};
 
 fn find(kind: LabelKind, index: usize) -> Option<usize> {
     LABELS.iter().position(|l| l.kind == kind && l.index == index)
@@ -80,7 +80,7 @@ pub fn group_r2(s: &Scores) -> Vec<(&'static str, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::metrics::score;
+    use dynforge_dataset::metrics::score;
     use dynforge_proto::NUM_LABELS;
 
     #[test]

@@ -4,7 +4,7 @@
 //!   heavy-tailed: a robot whose log barely moves a joint errs ten thousand times more than the median one, and the
 //!   RMSE is too wide for most robots and too narrow for those. The evidence says robot by robot what it pins down
 //!   (the posterior of the prior coordinates, through the labels by the delta method:
-//!   [`crate::evidence::label_posterior`]).
+//!   [`dynforge_dataset::evidence::label_posterior`]).
 //! - The refinement's: the posterior after the log's own torques (`dynforge_identify::refine`).
 //!
 //! Both posteriors assume white torque noise at a level of at least a floor. On a simulated log the floor is the
@@ -30,8 +30,8 @@ use dynforge_robot::Model;
 use dynforge_robot::rng::Rng;
 use serde::{Deserialize, Serialize};
 
-use super::recording::{RecordingError, normal_equations};
-use super::{Estimated, Estimator, EvaluationError};
+use crate::recording::{RecordingError, normal_equations};
+use crate::{Estimated, Estimator, EvaluationError};
 
 type Labels = [f64; NUM_LABELS];
 
