@@ -130,39 +130,64 @@ fn job_of_shard(name: &str, engine: &str) -> Option<(u64, u32)> {
     (file_name(robot, trajectory, engine) == name).then_some((robot, trajectory))
 }
 
-/// Checks one shard against its ledger entry; the reason if it fails. A family's shard is labelled with its
-/// standard parameters (12 per joint), the generator's with the paper's 38.
-fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64, family: bool) -> Result<(), String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+/// Why a shard does not match its ledger entry.
+#[derive(Debug, thiserror::Error)]
+pub enum ShardProblem {
+    #[error("{0}")]
+    Read(#[from] std::io::Error),
+    #[error("content hash differs from the ledger")]
+    Hash,
+    #[error("{0}")]
+    Shard(#[from] dynforge_shard::ShardError),
+    #[error("no /robot_description")]
+    NoDescription,
+    #[error("{found} joint states, the ledger says {ledger}")]
+    Samples { found: usize, ledger: u64 },
+    #[error("no label metadata")]
+    NoLabels,
+    #[error("label {0} missing or not a number")]
+    Label(String),
+    #[error("{labels} labels for {joints} joints (a family's shard has 12 per joint)")]
+    FamilyLabels { labels: usize, joints: usize },
+    #[error("no job metadata")]
+    NoJob,
+    #[error("job metadata does not match the file name")]
+    JobMismatch,
+}
+
+/// Checks one shard against its ledger entry. A family's shard is labelled with its standard parameters (12 per
+/// joint), the generator's with the paper's 38.
+fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64, family: bool) -> Result<(), ShardProblem> {
+    let bytes = std::fs::read(path)?;
     if dynforge_shard::content_hash(&bytes) != hash {
-        return Err("content hash differs from the ledger".into());
+        return Err(ShardProblem::Hash);
     }
-    let bag = dynforge_shard::read_bytes(&bytes, path).map_err(|e| e.to_string())?;
+    let bag = dynforge_shard::read_bytes(&bytes, path)?;
     if bag.robot_description.is_none() {
-        return Err("no /robot_description".into());
+        return Err(ShardProblem::NoDescription);
     }
     if bag.joint_states.len() as u64 != samples {
-        return Err(format!("{} joint states, the ledger says {samples}", bag.joint_states.len()));
+        return Err(ShardProblem::Samples { found: bag.joint_states.len(), ledger: samples });
     }
-    let labels = bag.metadata.get(META_LABELS).ok_or("no label metadata")?;
+    let labels = bag.metadata.get(META_LABELS).ok_or(ShardProblem::NoLabels)?;
     let names: Vec<&str> = match family {
         true => labels.keys().map(String::as_str).collect(),
         false => LABELS.iter().map(|l| l.name).collect(),
     };
     if let Some(l) = names.iter().find(|l| labels.get(**l).and_then(|v| v.parse::<f64>().ok()).is_none()) {
-        return Err(format!("label {l} missing or not a number"));
+        return Err(ShardProblem::Label(l.to_string()));
     }
     let joints = bag.joint_states.first().map_or(0, |m| m.name.len());
     if family && labels.len() != 12 * joints {
-        return Err(format!("{} labels for {joints} joints (a family's shard has 12 per joint)", labels.len()));
+        return Err(ShardProblem::FamilyLabels { labels: labels.len(), joints });
     }
-    let meta = bag.metadata.get(META_JOB).ok_or("no job metadata")?;
+    let meta = bag.metadata.get(META_JOB).ok_or(ShardProblem::NoJob)?;
     let field = |k: &str| meta.get(k).cloned().unwrap_or_default();
     if field("seed") != job.seed.to_string()
         || field("robot") != job.robot.to_string()
         || field("trajectory") != job.trajectory.to_string()
     {
-        return Err("job metadata does not match the file name".into());
+        return Err(ShardProblem::JobMismatch);
     }
     Ok(())
 }
@@ -199,7 +224,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
                         report.missing.push(name);
                     }
                 } else if let Err(reason) = check_shard(&path, &job, *samples, *shard_hash, manifest.family.is_some()) {
-                    report.corrupt.push((name, reason));
+                    report.corrupt.push((name, reason.to_string()));
                 }
             }
             Status::Discarded { reason } => {

@@ -40,7 +40,26 @@ pub enum LedgerError {
     #[error(
         "{path}:{line}: corrupt ledger line ({problem}); refusing to continue so nothing is lost: inspect or restore the file"
     )]
-    Corrupt { path: PathBuf, line: usize, problem: String },
+    Corrupt { path: PathBuf, line: usize, problem: LineProblem },
+}
+
+/// What is wrong with a ledger line.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum LineProblem {
+    #[error("no checksum field")]
+    NoChecksum,
+    #[error("checksum '{0}' is not hex")]
+    ChecksumNotHex(String),
+    #[error("checksum mismatch")]
+    ChecksumMismatch,
+    #[error("{0} fields instead of 7")]
+    Fields(usize),
+    #[error("{0} '{1}' is not a number")]
+    NotANumber(&'static str, String),
+    #[error("hash '{0}' is not hex")]
+    HashNotHex(String),
+    #[error("unknown status '{0}'")]
+    Status(String),
 }
 
 fn clean(text: &str) -> String {
@@ -58,25 +77,25 @@ impl Entry {
         format!("{body}\t{:016x}\n", content_hash(body.as_bytes()))
     }
 
-    fn parse(line: &str) -> Result<Entry, String> {
-        let (body, check) = line.rsplit_once('\t').ok_or("no checksum field")?;
-        let check = u64::from_str_radix(check, 16).map_err(|_| format!("checksum '{check}' is not hex"))?;
+    fn parse(line: &str) -> Result<Entry, LineProblem> {
+        let (body, check) = line.rsplit_once('\t').ok_or(LineProblem::NoChecksum)?;
+        let check = u64::from_str_radix(check, 16).map_err(|_| LineProblem::ChecksumNotHex(check.to_string()))?;
         if check != content_hash(body.as_bytes()) {
-            return Err("checksum mismatch".into());
+            return Err(LineProblem::ChecksumMismatch);
         }
         let f: Vec<&str> = body.split('\t').collect();
         if f.len() != 6 {
-            return Err(format!("{} fields instead of 7", f.len() + 1));
+            return Err(LineProblem::Fields(f.len() + 1));
         }
-        let num = |s: &str, what: &str| s.parse::<u64>().map_err(|_| format!("{what} '{s}' is not a number"));
+        let num = |s: &str, what| s.parse::<u64>().map_err(|_| LineProblem::NotANumber(what, s.to_string()));
         let status = match f[3] {
             "done" => Status::Done {
                 samples: num(f[4], "samples")?,
-                shard_hash: u64::from_str_radix(f[5], 16).map_err(|_| format!("hash '{}' is not hex", f[5]))?,
+                shard_hash: u64::from_str_radix(f[5], 16).map_err(|_| LineProblem::HashNotHex(f[5].to_string()))?,
             },
             "discarded" => Status::Discarded { reason: f[4].to_string() },
             "failed" => Status::Failed { message: f[4].to_string() },
-            other => return Err(format!("unknown status '{other}'")),
+            other => return Err(LineProblem::Status(other.to_string())),
         };
         Ok(Entry {
             job_id: num(f[0], "job id")?,

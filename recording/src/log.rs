@@ -152,7 +152,7 @@ fn log_welded(
     let names: Vec<String> = model.joints().iter().map(|j| j.name.clone()).collect();
     let (mut trajectory, velocity_logged) = from_bag_any_velocity(&bag, &names, &files[0])?;
     if let Some(gains) = &how.gains {
-        apply_gains(&mut trajectory, gains).map_err(content)?;
+        apply_gains(&mut trajectory, gains).map_err(|e| content(e.to_string()))?;
     }
     let clock = trajectory.clock();
     if clock.repeats > 0 {
@@ -178,15 +178,23 @@ fn log_welded(
     Ok(Log { files, document, source, model, welds, velocity_logged, dt, segments, notes })
 }
 
+/// `--gains` that do not match the robot's moving joints.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "--gains has {given} value(s) and the robot {} moving joint(s) ({}): one gain per joint, in the URDF's order",
+    joints.len(),
+    joints.join(", ")
+)]
+struct GainsProblem {
+    given: usize,
+    joints: Vec<String>,
+}
+
 /// The logged efforts of `traj` times `gains` (one per joint, in order): motor currents to joint torques.
-fn apply_gains(traj: &mut JointTrajectory, gains: &[f64]) -> Result<(), String> {
+fn apply_gains(traj: &mut JointTrajectory, gains: &[f64]) -> Result<(), GainsProblem> {
     let n = traj.joints();
     if gains.len() != n {
-        return Err(format!(
-            "--gains has {} value(s) and the robot {n} moving joint(s) ({}): one gain per joint, in the URDF's order",
-            gains.len(),
-            traj.names.join(", ")
-        ));
+        return Err(GainsProblem { given: gains.len(), joints: traj.names.clone() });
     }
     traj.tau.chunks_mut(n).for_each(|row| row.iter_mut().zip(gains).for_each(|(t, g)| *t *= g));
     Ok(())

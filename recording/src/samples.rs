@@ -92,7 +92,7 @@ fn joint_states(
         (vec![0; messages], vec![0.0; messages * n], vec![0.0; messages * n], vec![0.0; messages * n]);
     let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
     let per = messages.div_ceil(threads).max(1);
-    let results: Vec<Result<(), String>> = std::thread::scope(|scope| {
+    let results: Vec<Result<(), MessageProblem>> = std::thread::scope(|scope| {
         let stretches = bag.joint_states.chunks(per).zip(stamps.chunks_mut(per));
         let columns = q.chunks_mut(per * n).zip(qd.chunks_mut(per * n)).zip(tau.chunks_mut(per * n));
         let handles: Vec<_> = stretches
@@ -107,7 +107,7 @@ fn joint_states(
     });
     // The first stretch's error is the first message's that has one.
     if let Some(problem) = results.into_iter().find_map(Result::err) {
-        return Err(err(problem));
+        return Err(err(problem.to_string()));
     }
     // In stamp order (stable: a repeated stamp keeps its first message).
     let mut order: Vec<usize> = (0..messages).collect();
@@ -140,6 +140,20 @@ fn joint_states(
     Ok((out, with_velocity))
 }
 
+/// Why a joint_states message gives no sample of the robot's joints.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum MessageProblem {
+    #[error("joint_states message {message} has no joint '{joint}' (it has {has:?})")]
+    NoJoint { message: usize, joint: String, has: Vec<String> },
+    #[error("joint_states message {message}: {values} {what} values for {joints} joints")]
+    Values { message: usize, values: usize, what: &'static str, joints: usize },
+    #[error(
+        "joint_states message {message} (t = {t:.6} s): {what} of joint '{joint}' is {value} (dynforge needs \
+         measured position, velocity and effort for every joint)"
+    )]
+    NotFinite { message: usize, t: f64, what: &'static str, joint: String, value: f64 },
+}
+
 /// Where [`pick_columns`] writes a stretch of messages: their stamps [ns] and `[message][joint]` values (no
 /// velocity when the log has none).
 struct Columns<'a> {
@@ -151,7 +165,12 @@ struct Columns<'a> {
 
 /// The stamps and the joints `names`' values of `messages` (the log's from message `first` on) into `out`; the
 /// first message's problem if one has none.
-fn pick_columns(messages: &[JointState], first: usize, names: &[String], mut out: Columns) -> Result<(), String> {
+fn pick_columns(
+    messages: &[JointState],
+    first: usize,
+    names: &[String],
+    mut out: Columns,
+) -> Result<(), MessageProblem> {
     let n = names.len();
     let mut columns: Vec<usize> = Vec::with_capacity(n);
     let mut last_layout: Option<&std::sync::Arc<[String]>> = None;
@@ -161,27 +180,24 @@ fn pick_columns(messages: &[JointState], first: usize, names: &[String], mut out
         if !last_layout.is_some_and(|last| std::sync::Arc::ptr_eq(last, &m.name) || **last == *m.name) {
             columns.clear();
             for want in names {
-                let c =
-                    m.name.iter().position(|have| have == want).ok_or_else(|| {
-                        format!("joint_states message {k} has no joint '{want}' (it has {:?})", m.name)
-                    })?;
+                let c = m.name.iter().position(|have| have == want).ok_or_else(|| MessageProblem::NoJoint {
+                    message: k,
+                    joint: want.clone(),
+                    has: m.name.to_vec(),
+                })?;
                 columns.push(c);
             }
             last_layout = Some(&m.name);
         }
-        let pick = |v: &[f64], what: &str, out: &mut [f64]| -> Result<(), String> {
+        let pick = |v: &[f64], what: &'static str, out: &mut [f64]| -> Result<(), MessageProblem> {
             if v.len() != m.name.len() {
-                return Err(format!("joint_states message {k}: {} {what} values for {} joints", v.len(), m.name.len()));
+                return Err(MessageProblem::Values { message: k, values: v.len(), what, joints: m.name.len() });
             }
             // Drivers that do not measure a quantity often publish NaN for it; nothing downstream can use a
             // non-finite sample, and silently dropping it would bias the log.
             if let Some((&c, want)) = columns.iter().zip(names).find(|&(&c, _)| !v[c].is_finite()) {
-                return Err(format!(
-                    "joint_states message {k} (t = {:.6} s): {what} of joint '{want}' is {} (dynforge needs measured \
-                     position, velocity and effort for every joint)",
-                    m.stamp_ns() as f64 * 1e-9,
-                    v[c]
-                ));
+                let t = m.stamp_ns() as f64 * 1e-9;
+                return Err(MessageProblem::NotFinite { message: k, t, what, joint: want.clone(), value: v[c] });
             }
             out.iter_mut().zip(&columns).for_each(|(o, &c)| *o = v[c]);
             Ok(())

@@ -38,6 +38,49 @@ pub fn is_table(path: &Path) -> bool {
 /// The metadata record that says how a table was read (`info` prints it).
 pub const META_TABLE: &str = "table";
 
+/// What is wrong with a column map, before or while a table is read by it.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MapProblem {
+    #[error("no [joints.NAME] table: name each URDF joint's columns")]
+    NoJoints,
+    #[error("velocity is given for some joints and not for others: give it for every joint or none")]
+    SomeVelocities,
+    #[error("column 0: columns count from 1")]
+    ColumnZero,
+    #[error("column '{0}' is named, but header = false: number it, or set header")]
+    NamedWithoutHeader(String),
+    #[error("joint '{0}': effort and current both given; give one")]
+    EffortAndCurrent(String),
+    #[error("joint '{0}': no effort or current column")]
+    NoEffort(String),
+    #[error("joint '{joint}': gain {gain} is not a finite, non-zero number")]
+    Gain { joint: String, gain: f64 },
+    #[error("joint '{0}': a gain in the column map and in --gains")]
+    GainTwice(String),
+    #[error(
+        "joint '{0}': its column is a current, and no gain turns it into a torque (give --gains, or gain = ... in the \
+         column map)"
+    )]
+    NoGain(String),
+    #[error("the header has no column '{name}' (it has {header:?})")]
+    NotInHeader { name: String, header: Vec<String> },
+}
+
+/// Why a row of a table gives no joint state.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum RowProblem {
+    #[error("column {column}: '{field}' is not a number")]
+    NotANumber { column: usize, field: String },
+    #[error("column {column}: {value} is not a finite number")]
+    NotFinite { column: usize, value: f64 },
+    #[error("{count} column(s), the column map reads column {width}")]
+    Narrow { count: usize, width: usize },
+    #[error("time {0} is not a time")]
+    Time(f64),
+    #[error("the time goes backwards ({at} after {before})")]
+    Backwards { at: f64, before: f64 },
+}
+
 /// A table's column map: which column holds what (see the module documentation).
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -148,41 +191,39 @@ impl ColumnMap {
         let content = |problem: String| ReadError::Content { file: path.display().to_string(), problem };
         let text = std::fs::read_to_string(path).map_err(|e| content(e.to_string()))?;
         let map: ColumnMap = toml::from_str(&text).map_err(|e| content(format!("not a column map: {e}")))?;
-        map.check().map_err(content)?;
+        map.check().map_err(|e| content(e.to_string()))?;
         Ok(map)
     }
 
     /// The map's own consistency, before any table is read.
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), MapProblem> {
         if self.joints.is_empty() {
-            return Err("no [joints.NAME] table: name each URDF joint's columns".into());
+            return Err(MapProblem::NoJoints);
         }
         let with_velocity = self.joints.values().filter(|j| j.velocity.is_some()).count();
         if with_velocity != 0 && with_velocity != self.joints.len() {
-            return Err("velocity is given for some joints and not for others: give it for every joint or none".into());
+            return Err(MapProblem::SomeVelocities);
         }
         let columns = std::iter::once(&self.time.column).chain(self.joints.values().flat_map(|j| {
             [Some(&j.position), j.velocity.as_ref(), j.effort.as_ref(), j.current.as_ref()].into_iter().flatten()
         }));
         for c in columns {
             match c {
-                Column::Number(0) => return Err("column 0: columns count from 1".into()),
-                Column::Name(name) if !self.header => {
-                    return Err(format!("column '{name}' is named, but header = false: number it, or set header"));
-                }
+                Column::Number(0) => return Err(MapProblem::ColumnZero),
+                Column::Name(name) if !self.header => return Err(MapProblem::NamedWithoutHeader(name.clone())),
                 _ => {}
             }
         }
         for (name, j) in &self.joints {
             match (&j.effort, &j.current) {
-                (Some(_), Some(_)) => return Err(format!("joint '{name}': effort and current both given; give one")),
-                (None, None) => return Err(format!("joint '{name}': no effort or current column")),
+                (Some(_), Some(_)) => return Err(MapProblem::EffortAndCurrent(name.clone())),
+                (None, None) => return Err(MapProblem::NoEffort(name.clone())),
                 _ => {}
             }
             if let Some(g) = j.gain
                 && !(g.is_finite() && g != 0.0)
             {
-                return Err(format!("joint '{name}': gain {g} is not a finite, non-zero number"));
+                return Err(MapProblem::Gain { joint: name.clone(), gain: g });
             }
         }
         Ok(())
@@ -190,16 +231,11 @@ impl ColumnMap {
 
     /// An error unless every joint's effort becomes a torque exactly once: a current needs a gain, from the map or
     /// from `--gains` (`gains_given`), and a gain in both would be applied twice.
-    pub fn check_gains(&self, gains_given: bool) -> Result<(), String> {
+    pub fn check_gains(&self, gains_given: bool) -> Result<(), MapProblem> {
         for (name, j) in &self.joints {
             match (j.gain, gains_given) {
-                (Some(_), true) => return Err(format!("joint '{name}': a gain in the column map and in --gains")),
-                (None, false) if j.current.is_some() => {
-                    return Err(format!(
-                        "joint '{name}': its column is a current, and no gain turns it into a torque (give --gains, \
-                         or gain = ... in the column map)"
-                    ));
-                }
+                (Some(_), true) => return Err(MapProblem::GainTwice(name.clone())),
+                (None, false) if j.current.is_some() => return Err(MapProblem::NoGain(name.clone())),
                 _ => {}
             }
         }
@@ -251,7 +287,7 @@ pub fn read(path: &Path, map: &ColumnMap) -> Result<Bag, ReadError> {
         true => fields(line.trim_end_matches(['\n', '\r']), delimiter).map(|f| f.trim().trim_matches('"')).collect(),
         false => Vec::new(),
     };
-    let layout = layout(map, &header).map_err(content)?;
+    let layout = layout(map, &header).map_err(|e| content(e.to_string()))?;
     let parser = RowParser::new(map, &layout, delimiter);
     let (mut joint_states, mut skipped, mut first_skipped) = (Vec::new(), 0usize, None::<String>);
     let mut last_ns = i64::MIN;
@@ -279,7 +315,7 @@ pub fn read(path: &Path, map: &ColumnMap) -> Result<Bag, ReadError> {
             let row = row.and_then(|m| match m.stamp_ns() {
                 ns if ns < last_ns => {
                     let unit = |ns: i64| ns as f64 / layout.scale;
-                    Err(format!("the time goes backwards ({} after {})", unit(ns), unit(last_ns)))
+                    Err(RowProblem::Backwards { at: unit(ns), before: unit(last_ns) })
                 }
                 _ => Ok(m),
             });
@@ -361,7 +397,7 @@ impl<'a> RowParser<'a> {
 
     /// The rows of `piece` (its first line the table's line `first`), blank lines left out: each with its line
     /// number, and its joint state or why it has none.
-    fn parse(&self, piece: &str, first: usize) -> Vec<(usize, Result<JointState, String>)> {
+    fn parse(&self, piece: &str, first: usize) -> Vec<(usize, Result<JointState, RowProblem>)> {
         let layout = self.layout;
         let mut values = vec![0.0; layout.width];
         let mut out = Vec::with_capacity(piece.len() / 64);
@@ -372,7 +408,7 @@ impl<'a> RowParser<'a> {
             let row = parse_row(line, self.delimiter, &self.wanted, &mut values).and_then(|()| {
                 let t = values[layout.time] * layout.scale;
                 if !(t.is_finite() && t.abs() < 9.2e18) {
-                    return Err(format!("time {} is not a time", values[layout.time]));
+                    return Err(RowProblem::Time(values[layout.time]));
                 }
                 let ns = t.round() as i64;
                 let pick = |columns: &[usize], gain: Option<&[f64]>| -> Vec<f64> {
@@ -395,18 +431,18 @@ impl<'a> RowParser<'a> {
 }
 
 /// The map's columns as indices into a row whose header is `header` (empty without one).
-fn layout(map: &ColumnMap, header: &[&str]) -> Result<Layout, String> {
-    let index = |c: &Column| -> Result<usize, String> {
+fn layout(map: &ColumnMap, header: &[&str]) -> Result<Layout, MapProblem> {
+    let index = |c: &Column| -> Result<usize, MapProblem> {
         match c {
             Column::Number(n) => Ok(n - 1),
-            Column::Name(name) => header
-                .iter()
-                .position(|h| h == name)
-                .ok_or_else(|| format!("the header has no column '{name}' (it has {header:?})")),
+            Column::Name(name) => header.iter().position(|h| h == name).ok_or_else(|| MapProblem::NotInHeader {
+                name: name.clone(),
+                header: header.iter().map(|h| h.to_string()).collect(),
+            }),
         }
     };
     let joints: Vec<(&String, &JointColumns)> = map.joints.iter().collect();
-    let all = |f: &dyn Fn(&JointColumns) -> Option<&Column>| -> Result<Vec<usize>, String> {
+    let all = |f: &dyn Fn(&JointColumns) -> Option<&Column>| -> Result<Vec<usize>, MapProblem> {
         joints.iter().map(|(_, j)| index(f(j).expect("checked with the map"))).collect()
     };
     let gain = joints.iter().map(|(_, j)| j.gain.unwrap_or(1.0)).collect();
@@ -434,21 +470,23 @@ fn fields(line: &str, delimiter: Delimiter) -> Box<dyn Iterator<Item = &str> + '
 
 /// The `wanted` fields of `line` parsed into `values` (the others are not parsed); why not, if the row is too narrow
 /// or a wanted field is not a finite number.
-fn parse_row(line: &str, delimiter: Delimiter, wanted: &[bool], values: &mut [f64]) -> Result<(), String> {
+fn parse_row(line: &str, delimiter: Delimiter, wanted: &[bool], values: &mut [f64]) -> Result<(), RowProblem> {
     let mut count = 0;
     for (c, field) in fields(line, delimiter).take(wanted.len()).enumerate() {
         count = c + 1;
         if wanted[c] {
-            let v: f64 =
-                field.trim().parse().map_err(|_| format!("column {}: '{}' is not a number", c + 1, field.trim()))?;
+            let v: f64 = field
+                .trim()
+                .parse()
+                .map_err(|_| RowProblem::NotANumber { column: c + 1, field: field.trim().to_string() })?;
             if !v.is_finite() {
-                return Err(format!("column {}: {v} is not a finite number", c + 1));
+                return Err(RowProblem::NotFinite { column: c + 1, value: v });
             }
             values[c] = v;
         }
     }
     if count < wanted.len() {
-        return Err(format!("{count} column(s), the column map reads column {}", wanted.len()));
+        return Err(RowProblem::Narrow { count, width: wanted.len() });
     }
     Ok(())
 }
@@ -571,7 +609,7 @@ mod tests {
             current = "i"
         "#;
         let path = table(dir.path(), "log.txt", "# logger v2\nstamp  i  q\n0.5 3 1\n  0.75\t4 2  \n");
-        let e = map(named).check_gains(false).unwrap_err();
+        let e = map(named).check_gains(false).unwrap_err().to_string();
         assert!(e.contains("joint 'a': its column is a current") && e.contains("--gains"), "{e}");
         assert_eq!(map(named).check_gains(true), Ok(()));
         let bag = read(&path, &map(named)).unwrap();
@@ -580,7 +618,7 @@ mod tests {
         assert!(m.velocity.is_empty());
         assert!(bag.metadata[META_TABLE]["columns"].ends_with("a: position 3 current 2 x --gains"));
         let gained = map(&named.replace("current = \"i\"", "current = \"i\"\ngain = 3.0"));
-        assert!(gained.check_gains(true).unwrap_err().contains("a gain in the column map and in --gains"));
+        assert!(gained.check_gains(true).unwrap_err().to_string().contains("a gain in the column map and in --gains"));
         assert_eq!(read(&path, &gained).unwrap().joint_states[1].effort, [12.0]);
         let wrong = named.replace("\"q\"", "\"pos\"");
         let e = read(&path, &map(&wrong)).unwrap_err().to_string();
@@ -589,7 +627,11 @@ mod tests {
 
     #[test]
     fn a_map_that_cannot_be_applied_is_refused_before_any_table_is_read() {
-        let problem = |text: &str| toml::from_str::<ColumnMap>(text).map_err(|e| e.to_string()).and_then(|m| m.check());
+        let problem = |text: &str| {
+            toml::from_str::<ColumnMap>(text)
+                .map_err(|e| e.to_string())
+                .and_then(|m| m.check().map_err(|e| e.to_string()))
+        };
         let base = "time = { column = 1 }\n[joints.a]\nposition = 2\n";
         assert!(problem(&format!("{base}effort = 3\ncurrent = 4\n")).unwrap_err().contains("effort and current both"));
         assert!(problem(base).unwrap_err().contains("no effort or current column"));

@@ -18,7 +18,7 @@ mod report;
 mod written;
 
 pub use ran::{RAN_TOLERANCE, Ran, check_ran};
-pub use readiness::{Readiness, TESTED_RATES};
+pub use readiness::{Readiness, Refusal, TESTED_RATES};
 pub use report::{
     Decided, Estimated, Identification, JointEstimate, Kind, LinkEstimate, Parameter, RUN_TO_RUN, RunToRun, Scale,
     measured_share,

@@ -16,8 +16,19 @@ pub const TESTED_RATES: (f64, f64) = (100.0, 1000.0);
 /// What `identify` and `estimate` make of a log: what they would read, or why they cannot.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Readiness {
-    pub identify: Result<String, String>,
-    pub estimate: Result<String, String>,
+    pub identify: Result<String, Refusal>,
+    pub estimate: Result<String, Refusal>,
+}
+
+/// Why a command cannot take a log, as the command would say it.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct Refusal(String);
+
+impl Refusal {
+    fn of(e: impl std::fmt::Display) -> Self {
+        Refusal(e.to_string())
+    }
 }
 
 impl Readiness {
@@ -27,32 +38,33 @@ impl Readiness {
     /// read depends on it).
     pub fn of(files: Vec<PathBuf>, bag: Bag, described: bool, document: Option<(&str, &str)>) -> Readiness {
         if !described && document.is_none() {
-            let why = "the log has no readable /robot_description: give the robot's URDF with --urdf".to_string();
+            let why = Refusal::of("the log has no readable /robot_description: give the robot's URDF with --urdf");
             return Readiness { identify: Err(why.clone()), estimate: Err(why) };
         }
         let model = document.map(|(text, source)| dynforge_robot::urdf::parse(text, source));
         let estimate = match model {
-            Some(Err(e)) => Err(e.to_string()),
+            Some(Err(e)) => Err(Refusal::of(e)),
             Some(Ok(model)) => estimate(&files, &bag, Some(&model)),
             None => estimate(&files, &bag, None),
         };
-        let identify = log_of(files, bag, document, &Reading::default()).map_err(|e| e.to_string()).and_then(identify);
+        let identify = log_of(files, bag, document, &Reading::default()).map_err(Refusal::of).and_then(identify);
         Readiness { identify, estimate }
     }
 }
 
-fn identify(log: Log) -> Result<String, String> {
+fn identify(log: Log) -> Result<String, Refusal> {
     let logs = [log];
     // Joints that move too little (a gripper's, held still) identify welds, as it says.
     let idle = super::idle_joints(&logs);
     let log = &logs[0];
     let n = log.model.dof();
     if idle.len() == n {
-        return Err("no joint moves in the log: nothing to calibrate from".into());
+        return Err(Refusal::of("no joint moves in the log: nothing to calibrate from"));
     }
     let silent: Vec<&str> = super::silent_joints(log).into_iter().filter(|name| !idle.contains_key(*name)).collect();
     if !silent.is_empty() {
-        return Err(format!("the effort of {} is zero throughout: no torques to calibrate from", silent.join(", ")));
+        let why = format!("the effort of {} is zero throughout: no torques to calibrate from", silent.join(", "));
+        return Err(Refusal(why));
     }
     let rate = 1.0 / log.dt;
     let segments: Vec<&dynforge_recording::JointTrajectory> = log.segments.iter().collect();
@@ -80,14 +92,15 @@ fn identify(log: Log) -> Result<String, String> {
     Ok(said)
 }
 
-fn estimate(files: &[PathBuf], bag: &Bag, model: Option<&dynforge_robot::Model>) -> Result<String, String> {
+fn estimate(files: &[PathBuf], bag: &Bag, model: Option<&dynforge_robot::Model>) -> Result<String, Refusal> {
     let job = bag.metadata.get(dynforge_proto::shard::META_JOB);
     if job.is_some_and(|j| j.contains_key("family")) {
-        return Err("a shard of a robot's family (`generate --urdf`), labelled with its standard parameters: the \
-                    estimators learn the generator's robots; `identify` calibrates it"
-            .into());
+        return Err(Refusal::of(
+            "a shard of a robot's family (`generate --urdf`), labelled with its standard parameters: the estimators \
+             learn the generator's robots; `identify` calibrates it",
+        ));
     }
-    let rec = recording_of(&files[0], bag, model).map_err(|e| e.to_string())?;
+    let rec = recording_of(&files[0], bag, model).map_err(Refusal::of)?;
     Ok(format!(
         "a {}-joint robot, {:.1} s of motion: with a model trained on its family (dynforge estimate --checkpoint RUN)",
         rec.model.dof(),
