@@ -458,6 +458,16 @@ fn cell(e: &Estimated) -> String {
 
 impl std::fmt::Display for Identification {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.fmt_signals(f)?;
+        self.fmt_links(f)?;
+        self.fmt_joints(f)?;
+        self.fmt_verdict(f)
+    }
+}
+
+impl Identification {
+    /// What was read: the logs, the velocity and effort as taken, the rank.
+    fn fmt_signals(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
             "{} log(s), {} samples at {:.0} Hz, {} torque rows{}",
@@ -479,7 +489,11 @@ impl std::fmt::Display for Identification {
             (_, None) => writeln!(f, "velocity: as logged ({})", v.reason)?,
         }
         writeln!(f, "effort: {} ({})", self.effort.name(), self.effort_reason)?;
-        writeln!(f, "{} of {} parameter combinations identifiable", self.rank, self.parameters)?;
+        writeln!(f, "{} of {} parameter combinations identifiable", self.rank, self.parameters)
+    }
+
+    /// Each link's mass, centre of mass and inertia about it.
+    fn fmt_links(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
             "\nlinks (value ± standard deviation; mass ×÷ a factor, one standard deviation of its logarithm; * = the \
@@ -512,6 +526,11 @@ impl std::fmt::Display for Identification {
             let i = &l.inertia;
             writeln!(f, "  {:<22} {} {} {}", l.name, cell(&i[1]), cell(&i[2]), cell(&i[4]))?;
         }
+        Ok(())
+    }
+
+    /// Each joint's friction, drive terms, noise and fit, and their spreads over runs.
+    fn fmt_joints(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
             "\njoints (friction in N m and N m s/rad, rotor inertia in kg m^2, offset in N m; prismatic: N, N s/m, kg, N)"
@@ -537,6 +556,11 @@ impl std::fmt::Display for Identification {
                 writeln!(f, "  {:<22} {c} {v} {:>23} {o}", j.name, "")?;
             }
         }
+        Ok(())
+    }
+
+    /// How well the calibration predicts the logs, and what the user should know.
+    fn fmt_verdict(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
             f,
             "\ntorque NRMSE on the logs: calibrated {:.4}, URDF as given {:.4}, least squares (base parameters) {:.4}",
