@@ -229,3 +229,105 @@ fn join_ledgers_and_shards(
     }
     Ok(merged)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ledger::Entry;
+    use crate::plan::{Plan, job_id};
+    use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_proto::sim::SimConfig;
+    use std::collections::BTreeSet;
+
+    const ROBOTS: u64 = 5;
+    const TRAJECTORIES: u32 = 2;
+
+    fn manifest(seed: u64, index: u32, count: u32) -> Manifest {
+        let partition = Partition { index, count };
+        Manifest::new(seed, ROBOTS, TRAJECTORIES, partition, GeneratorConfig::default(), SimConfig::default())
+    }
+
+    /// The run directory `root/name` of `m` whose ledger records every planned job discarded (complete, no shards),
+    /// less the last `short` of them.
+    fn partition_dir(root: &Path, name: &str, m: &Manifest, short: usize) -> PathBuf {
+        let dir = root.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        m.create_or_check(&dir).unwrap();
+        let (mut ledger, _) = ledger::Ledger::open(&dir.join(LEDGER)).unwrap();
+        let jobs: Vec<_> = Plan::of(m).jobs().collect();
+        for j in &jobs[..jobs.len() - short] {
+            let status = Status::Discarded { reason: "collision".into() };
+            let e = Entry { job_id: job_id(j, m.trajectories), robot: j.robot, trajectory: j.trajectory, status };
+            ledger.append(&e).unwrap();
+        }
+        dir
+    }
+
+    fn partitions(root: &Path, count: u32) -> Vec<PathBuf> {
+        (0..count).map(|i| partition_dir(root, &format!("part{i}"), &manifest(1, i, count), 0)).collect()
+    }
+
+    #[test]
+    fn only_exactly_the_n_partitions_of_one_run_make_a_run() {
+        let tmp = tempfile::tempdir().unwrap();
+        let root = tmp.path();
+        let three = partitions(&root.join("three"), 3);
+        let two = partitions(&root.join("two"), 2);
+        let other_seed = partition_dir(root, "seed2", &manifest(2, 1, 2), 0);
+        let again = partition_dir(root, "again", &manifest(1, 0, 2), 0);
+        let no_manifest = root.join("empty");
+        std::fs::create_dir_all(&no_manifest).unwrap();
+
+        let swapped = [two[1].clone(), two[0].clone()];
+        let (first, by_index) = one_run(&swapped).unwrap();
+        assert_eq!(by_index.keys().copied().collect::<Vec<_>>(), [0, 1], "given in any order");
+        assert_eq!(Manifest { partition: Partition::WHOLE, ..first }, manifest(1, 0, 1));
+        assert!(one_run(&three).is_ok());
+
+        let refusal = |parts: &[PathBuf]| one_run(parts).err().expect("refused");
+        let set = |parts: &[PathBuf]| matches!(refusal(parts), MergeError::Set(_));
+        let part = |parts: &[PathBuf]| matches!(refusal(parts), MergeError::Partition { .. });
+        assert!(set(&[]), "none given");
+        assert!(set(&three[..2]), "one missing");
+        assert!(set(&[two[0].clone(), again, two[1].clone()]), "one given twice");
+        assert!(part(&[two[0].clone(), three[1].clone()]), "of a different split");
+        assert!(part(&[two[0].clone(), other_seed]), "of another run");
+        assert!(matches!(refusal(&[two[0].clone(), no_manifest]), MergeError::NoManifest(_)));
+    }
+
+    #[test]
+    fn merged_partitions_make_the_whole_run_with_each_record_once() {
+        let tmp = tempfile::tempdir().unwrap();
+        let parts = partitions(tmp.path(), 3);
+        let out = tmp.path().join("merged");
+        let merged = merge(&parts, &out, |_, _| {}).unwrap();
+
+        let whole = Manifest::load(&out).unwrap().expect("the merged run has a manifest");
+        assert_eq!(whole, manifest(1, 0, 1), "the single host's manifest: partition 0/1");
+        let plan = Plan::of(&whole);
+        let entries = ledger::read(&out.join(LEDGER)).unwrap();
+        let ids: BTreeSet<u64> = entries.iter().map(|e| e.job_id).collect();
+        let planned: BTreeSet<u64> = plan.jobs().map(|j| job_id(&j, TRAJECTORIES)).collect();
+        assert_eq!(ids, planned, "every planned job is recorded");
+        assert_eq!(entries.len() as u64, plan.len(), "and none twice");
+        assert!(entries.iter().all(|e| plan.records(e)));
+        assert_eq!(merged.partitions, parts.len());
+        assert_eq!(merged.ledger_entries, entries.len());
+        assert_eq!((merged.shards, merged.pruned), (0, 0), "discarded jobs have no shards");
+    }
+
+    /// Checks before writing: a refused merge leaves no output behind that could pass for, or spoil, a run.
+    #[test]
+    fn an_incomplete_partition_or_an_output_inside_one_is_refused_before_anything_is_written() {
+        let tmp = tempfile::tempdir().unwrap();
+        let mut parts = partitions(tmp.path(), 2);
+        let inside = parts[0].join("merged");
+        assert!(matches!(merge(&parts, &inside, |_, _| {}), Err(MergeError::Partition { .. })));
+        assert!(!inside.exists());
+
+        parts[1] = partition_dir(tmp.path(), "short", &manifest(1, 1, 2), 1);
+        let out = tmp.path().join("merged");
+        assert!(matches!(merge(&parts, &out, |_, _| {}), Err(MergeError::Partition { .. })));
+        assert!(!out.exists(), "the output is not created");
+    }
+}

@@ -108,3 +108,76 @@ pub fn prune(
     std::fs::File::open(&shards).and_then(|d| d.sync_all()).map_err(|e| io(&shards, e))?;
     Ok(Pruned { cache: cache.what, shards: present.len() })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ledger::{Entry, Ledger, Status};
+    use crate::plan::{Partition, Plan, job_id};
+    use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_proto::sim::SimConfig;
+    use std::path::PathBuf;
+
+    /// A run directory of 2 robots x 2 trajectories whose ledger records its jobs with `statuses` (in plan order);
+    /// a `Done` job's shard holds `shard` (bytes a worker did not write).
+    fn run_dir(statuses: &[Status], shard: &[u8]) -> (tempfile::TempDir, Vec<PathBuf>) {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let m = Manifest::new(4, 2, 2, Partition::WHOLE, GeneratorConfig::default(), SimConfig::default());
+        m.create_or_check(dir).unwrap();
+        std::fs::create_dir_all(dir.join(SHARDS)).unwrap();
+        let (mut ledger, _) = Ledger::open(&dir.join(LEDGER)).unwrap();
+        let mut shards = Vec::new();
+        for (j, status) in Plan::of(&m).jobs().zip(statuses) {
+            if let Status::Done { .. } = status {
+                let path = dir.join(SHARDS).join(j.shard_name(m.sim.engine.name()));
+                std::fs::write(&path, shard).unwrap();
+                shards.push(path);
+            }
+            let e = Entry {
+                job_id: job_id(&j, m.trajectories),
+                robot: j.robot,
+                trajectory: j.trajectory,
+                status: status.clone(),
+            };
+            ledger.append(&e).unwrap();
+        }
+        (tmp, shards)
+    }
+
+    fn discarded() -> Status {
+        Status::Discarded { reason: "collision".into() }
+    }
+
+    fn prune_it(dir: &Path) -> Result<Pruned, PruneError> {
+        prune(dir, ModelKind::Physics, &WindowSpec::default(), |_, _, _| true)
+    }
+
+    /// The caches' key includes the ledger: a cache made before the last jobs are recorded would not hold them.
+    #[test]
+    fn a_run_with_pending_jobs_is_not_pruned() {
+        let (tmp, _) = run_dir(&[discarded(), discarded(), discarded()], b"");
+        assert!(matches!(prune_it(tmp.path()), Err(PruneError::NotReady { .. })));
+        assert!(!tmp.path().join(run_dir::PRUNED).exists(), "nothing is recorded pruned");
+    }
+
+    /// Pruning deletes data for good: a shard that does not match its ledger record is never deleted.
+    #[test]
+    fn a_run_whose_shards_do_not_verify_keeps_every_shard() {
+        let bytes = b"not an mcap file";
+        let done = Status::Done { samples: 100, shard_hash: dynforge_shard::content_hash(bytes) };
+        let (tmp, shards) = run_dir(&[done, discarded(), discarded(), discarded()], bytes);
+        assert!(matches!(prune_it(tmp.path()), Err(PruneError::NotReady { .. })));
+        for s in &shards {
+            assert_eq!(std::fs::read(s).unwrap(), bytes, "{} untouched", s.display());
+        }
+        assert!(!tmp.path().join(run_dir::PRUNED).exists());
+    }
+
+    #[test]
+    fn a_run_directory_someone_holds_is_not_pruned() {
+        let (tmp, _) = run_dir(&[discarded(), discarded(), discarded(), discarded()], b"");
+        let _generating = crate::lock::RunLock::acquire(tmp.path(), Duration::ZERO, crate::run::GENERATING).unwrap();
+        assert!(matches!(prune_it(tmp.path()), Err(PruneError::Lock(_))));
+    }
+}

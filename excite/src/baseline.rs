@@ -4,9 +4,9 @@
 use dynforge_robot::rng::Rng;
 use nalgebra::DMatrix;
 
-use crate::design::DENSE_RATE;
 use crate::information::{Base, Quality};
 use crate::motion::MultiSine;
+use crate::options::DENSE_RATE;
 use crate::sampler::Sampler;
 
 /// Random multi-sines drawn per comparison (alone, and sets of as many as the design has trajectories).

@@ -12,57 +12,10 @@ use crate::ExciteError;
 use crate::baseline::{MultiSines, multisines};
 use crate::collision::SelfCollision;
 use crate::information::{Base, Quality};
+use crate::options::{DENSE_RATE, Options};
 use crate::sampler::{Bounds, Candidate, Sampler};
 use crate::tours::tour_information;
 use dynforge_proto::fourier::Fourier;
-
-/// What to design and within which limits.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Options {
-    /// Duration of each trajectory [s] (one period of its series).
-    pub duration: f64,
-    /// Trajectories.
-    pub count: usize,
-    /// Harmonics per joint; the highest frequency is `harmonics / duration` Hz.
-    pub harmonics: usize,
-    /// Pose at the start and end of every trajectory (default: the middle of each joint's range).
-    pub start: Option<Vec<f64>>,
-    /// Acceleration limit per joint, or one for all [rad/s^2 or m/s^2]: URDFs do not state one.
-    pub acceleration: Vec<f64>,
-    /// Shares of the URDF's velocity and effort limits the motion may use (the effort computed with the URDF's own
-    /// parameters, which are off: keep a margin).
-    pub velocity_share: f64,
-    pub effort_share: f64,
-    /// Share of each joint's range kept free at either end.
-    pub position_margin: f64,
-    /// Torque noise per joint, or one for all [N m or N]: each joint's torques weigh by its inverse in the design's
-    /// information, and the report's expected deviations assume it.
-    pub noise: Vec<f64>,
-    /// Samples per second the information is summed over.
-    pub rate: f64,
-    /// Candidates judged per trajectory.
-    pub evaluations: usize,
-    pub seed: u64,
-}
-
-impl Default for Options {
-    fn default() -> Self {
-        Options {
-            duration: 10.0,
-            count: 4,
-            harmonics: 5,
-            start: None,
-            acceleration: vec![5.0],
-            velocity_share: 0.8,
-            effort_share: 0.8,
-            position_margin: 0.05,
-            noise: vec![0.1],
-            rate: 50.0,
-            evaluations: 1500,
-            seed: 0,
-        }
-    }
-}
 
 /// A designed set of excitations, with the quality of each alone and of all together, beside what it is worth: random
 /// multi-sines within the same limits, the generator's tours, and the same design under a looser acceleration limit.
@@ -97,9 +50,6 @@ pub struct Clearance {
     /// The distance below which bodies counted as touching [m].
     pub padding: f64,
 }
-
-/// Rate [Hz] the final trajectories' efforts are checked at.
-pub(crate) const DENSE_RATE: f64 = 1000.0;
 
 /// The factor on the acceleration limit the report prices: what the design would gain were the limit this much
 /// looser.

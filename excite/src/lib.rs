@@ -8,15 +8,15 @@ pub mod collision;
 pub mod design;
 pub mod information;
 pub mod motion;
+mod options;
 mod sampler;
 pub mod tours;
 pub mod write;
 
 pub use collision::SelfCollision;
-pub use design::{
-    Clearance, Design, MAX_DESIGN_SAMPLES, MAX_WRITTEN_SAMPLES, Options, design, design_with, start_pose,
-};
+pub use design::{Clearance, Design, MAX_DESIGN_SAMPLES, MAX_WRITTEN_SAMPLES, design, design_with, start_pose};
 pub use dynforge_proto::fourier::Fourier;
+pub use options::Options;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ExciteError {

@@ -6,9 +6,9 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::ExciteError;
 use crate::collision::SelfCollision;
-use crate::design::Options;
 use crate::information::{Information, scales};
 use crate::motion::Motion;
+use crate::options::Options;
 use dynforge_proto::fourier::Fourier;
 
 /// Per joint the bounds the motion keeps (position interval, speed, acceleration and effort) and the torque noise its

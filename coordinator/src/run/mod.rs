@@ -404,3 +404,161 @@ impl Run<'_> {
         Ok(self.progress)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynforge_proto::run_dir::temporary_path;
+
+    /// Collects what a run tells its display.
+    #[derive(Default)]
+    struct Messages(Vec<String>);
+
+    impl Observer for Messages {
+        fn update(&mut self, _: &Progress) {}
+        fn message(&mut self, text: &str) {
+            self.0.push(text.to_string());
+        }
+    }
+
+    fn config(dir: &Path) -> GenerateConfig {
+        GenerateConfig {
+            dir: dir.to_path_buf(),
+            seed: 7,
+            robots: 3,
+            trajectories: 2,
+            workers: 2,
+            partition: Partition::WHOLE,
+            generator: GeneratorConfig::default(),
+            sim: SimConfig::default(),
+            family: None,
+            job_timeout: Duration::from_secs(60),
+            max_attempts: 3,
+            worker_command: vec!["dynforge-worker".into()],
+        }
+    }
+
+    fn queue(planned: Vec<Job>) -> Queue {
+        let planned: Box<dyn Iterator<Item = Job>> = Box::new(planned.into_iter());
+        Queue { retries: VecDeque::new(), planned: planned.peekable() }
+    }
+
+    fn job(robot: u64, trajectory: u32) -> Job {
+        Job { seed: 7, robot, trajectory }
+    }
+
+    #[test]
+    fn a_requeued_job_is_handed_out_before_the_planned_ones_and_none_is_lost() {
+        let planned = vec![job(0, 0), job(0, 1), job(1, 0)];
+        let mut q = queue(planned.clone());
+        let first = q.pop_front().unwrap();
+        assert_eq!(first, planned[0]);
+        q.push_front(first);
+        let mut handed = Vec::new();
+        // Asking whether it is empty (it peeks at the plan) must not use a job up.
+        while !q.is_empty() {
+            assert!(!q.is_empty());
+            handed.push(q.pop_front().unwrap());
+        }
+        assert_eq!(handed, planned, "the retry first, then the rest of the plan in order");
+        assert_eq!(q.pop_front(), None);
+    }
+
+    /// A resume must redo exactly the jobs whose record says nothing final about them (failed) or whose shard is
+    /// gone, and must not redo a pruned shard's job (its data live on in the caches).
+    #[test]
+    fn a_resume_skips_final_jobs_and_reruns_failed_and_lost_ones() {
+        let tmp = tempfile::tempdir().unwrap();
+        let cfg = config(tmp.path());
+        let engine = cfg.sim.engine.name();
+        std::fs::create_dir_all(cfg.dir.join(SHARDS)).unwrap();
+        let entry = |robot, trajectory, status| {
+            let id = plan::job_id(&job(robot, trajectory), cfg.trajectories);
+            Entry { job_id: id, robot, trajectory, status }
+        };
+        let done = || Status::Done { samples: 10, shard_hash: 1 };
+        let failed = || Status::Failed { message: "worker died (3 attempts)".into() };
+        let present = |robot, trajectory| {
+            std::fs::write(cfg.dir.join(SHARDS).join(job(robot, trajectory).shard_name(engine)), b"shard").unwrap()
+        };
+        present(0, 0);
+        present(2, 0);
+        present(2, 1);
+        let pruned: std::collections::BTreeSet<String> = [job(1, 0).shard_name(engine)].into();
+        let entries = vec![
+            entry(0, 0, done()),                                           // kept: its shard is there
+            entry(0, 1, done()),                                           // rerun: its shard is gone
+            entry(1, 0, done()),                                           // kept: pruned, not gone
+            entry(1, 1, Status::Discarded { reason: "collision".into() }), // kept: a discard is final
+            entry(2, 0, failed()),
+            entry(2, 0, done()), // kept: the retry that succeeded counts
+            entry(2, 1, done()),
+            entry(2, 1, failed()), // rerun: marked failed later (verify --repair)
+        ];
+        let mut messages = Messages::default();
+        let finished = finished_jobs(&cfg, &entries, &pruned, &mut messages);
+
+        let kept = [(0, 0), (1, 0), (1, 1), (2, 0)].map(|(r, t)| plan::job_id(&job(r, t), cfg.trajectories));
+        assert_eq!(finished.keys().copied().collect::<Vec<_>>(), kept.to_vec());
+        let latest = crate::ledger::latest(&entries);
+        for (id, status) in &finished {
+            assert_eq!(status, &latest[id].status, "job {id} keeps its latest status");
+        }
+        assert!(messages.0.iter().any(|m| m.contains("failed")), "the retries are announced: {:?}", messages.0);
+        assert!(messages.0.iter().any(|m| m.contains("missing")), "the lost shards are announced: {:?}", messages.0);
+    }
+
+    #[test]
+    fn settings_with_nothing_to_do_or_more_trajectories_than_a_tour_are_refused() {
+        let tmp = tempfile::tempdir().unwrap();
+        let good = config(tmp.path());
+        assert!(check_settings(&good).is_ok());
+        let tour = good.sim.trajectory.waypoints;
+        let all = GenerateConfig { trajectories: tour as u32, ..good.clone() };
+        assert!(check_settings(&all).is_ok(), "a robot has as many trajectories as waypoints");
+        for bad in [
+            GenerateConfig { robots: 0, ..good.clone() },
+            GenerateConfig { trajectories: 0, ..good.clone() },
+            GenerateConfig { workers: 0, ..good.clone() },
+            GenerateConfig { trajectories: tour as u32 + 1, ..good.clone() },
+        ] {
+            assert!(
+                matches!(check_settings(&bad), Err(GenerateError::Settings(_))),
+                "robots {} trajectories {} workers {}",
+                bad.robots,
+                bad.trajectories,
+                bad.workers
+            );
+        }
+    }
+
+    #[test]
+    fn a_finished_run_is_an_error_exactly_when_a_job_failed() {
+        let dir = Path::new("/runs/a");
+        let mut p = Progress { total: 4, done: 3, discarded: 1, ..Progress::default() };
+        assert!(p.check_failures(dir).is_ok());
+        p.failed = 2;
+        assert!(matches!(p.check_failures(dir), Err(GenerateError::Failed { failed: 2, .. })));
+    }
+
+    /// Partial files of writers a crash killed would otherwise read as extra shards or caches.
+    #[test]
+    fn leftover_temporary_files_are_removed_and_finished_files_kept() {
+        let tmp = tempfile::tempdir().unwrap();
+        let dir = tmp.path();
+        let mut finished = Vec::new();
+        let mut partial = Vec::new();
+        for sub in [dir.to_path_buf(), dir.join(SHARDS), dir.join(CACHE)] {
+            std::fs::create_dir_all(&sub).unwrap();
+            let file = sub.join("kept.bin");
+            std::fs::write(&file, b"x").unwrap();
+            std::fs::write(temporary_path(&file), b"half").unwrap();
+            partial.push(temporary_path(&file));
+            finished.push(file);
+        }
+        assert_eq!(remove_leftovers(dir).unwrap(), partial.len());
+        assert!(finished.iter().all(|f| f.exists()));
+        assert!(partial.iter().all(|f| !f.exists()));
+        assert_eq!(remove_leftovers(dir).unwrap(), 0, "nothing is left the second time");
+    }
+}

@@ -109,3 +109,63 @@ impl Run<'_> {
         let _ = self.ipc.publish_status(&status);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn entry(job_id: u64, status: Status) -> Entry {
+        Entry { job_id, robot: job_id / 2, trajectory: (job_id % 2) as u32, status }
+    }
+
+    fn done() -> Status {
+        Status::Done { samples: 5, shard_hash: 9 }
+    }
+
+    fn failed() -> Status {
+        Status::Failed { message: "its worker died".into() }
+    }
+
+    fn discarded(reason: &str) -> Status {
+        Status::Discarded { reason: reason.into() }
+    }
+
+    /// A job retried after a failure has several records; counting them all would finish more jobs than there are.
+    #[test]
+    fn ledger_counts_take_each_job_s_latest_record_and_add_up() {
+        let entries = vec![
+            entry(0, failed()),
+            entry(0, done()),
+            entry(1, discarded("timeout")),
+            entry(2, discarded("collision")),
+            entry(3, discarded("timeout")),
+            entry(4, done()),
+            entry(4, failed()),
+            entry(5, failed()),
+            entry(5, failed()),
+        ];
+        let p = Progress::from_ledger(10, &entries);
+        assert_eq!(p.total, 10);
+        assert_eq!((p.done, p.discarded, p.failed), (1, 3, 2), "jobs 0 done; 1, 2, 3 discarded; 4, 5 failed");
+        let jobs: std::collections::BTreeSet<u64> = entries.iter().map(|e| e.job_id).collect();
+        assert_eq!(p.finished(), jobs.len() as u64, "one outcome per job");
+        assert_eq!(p.reasons.values().sum::<u64>(), p.discarded, "every discard has its reason counted");
+        assert_eq!(p.reasons.get("timeout"), Some(&2));
+    }
+
+    #[test]
+    fn recording_an_outcome_finishes_one_job_of_its_kind() {
+        let mut p = Progress { total: 3, ..Progress::default() };
+        for (k, status) in [done(), discarded("unstable"), failed()].iter().enumerate() {
+            let before = p.clone();
+            p.record(status);
+            assert_eq!(p.finished(), k as u64 + 1);
+            let grew = [(before.done, p.done), (before.discarded, p.discarded), (before.failed, p.failed)];
+            assert_eq!(grew.iter().filter(|(a, b)| b == &(a + 1)).count(), 1, "{status:?} counts once");
+            assert_eq!(grew[k].1, grew[k].0 + 1, "{status:?} counts as its own kind");
+        }
+        assert_eq!(p.reasons.get("unstable"), Some(&1));
+        let line = p.to_string();
+        assert!(line.contains("unstable 1"), "the line names discards by reason: {line}");
+    }
+}
