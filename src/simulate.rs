@@ -9,7 +9,8 @@ use clap::Args;
 use dynforge_proto::sim::EngineKind;
 use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::output::Outcome;
 
 #[derive(Args)]
 pub struct SimulateArgs {

@@ -7,7 +7,8 @@ use std::path::Path;
 
 use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::output::Outcome;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 

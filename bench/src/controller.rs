@@ -11,7 +11,7 @@ use dynforge_proto::sim::EngineKind;
 use dynforge_proto::sim::SimConfig;
 use dynforge_robot::generator::GeneratorConfig;
 use dynforge_worker::job::{Job, Runner};
-use dynforge_worker::simulate::Reference;
+use dynforge_worker::trajectory::Reference;
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {

@@ -11,6 +11,11 @@ use parry3d_f64::math::{Pose, Vec3};
 use parry3d_f64::query::intersection_test;
 use parry3d_f64::shape::{ConvexPolyhedron, Cuboid, Cylinder, Shape};
 
+/// A robot's collision bodies: the first contact in the configuration whose link frames are `o_m_i`.
+pub trait Collides {
+    fn contact(&self, o_m_i: &[Se3]) -> Option<Contact>;
+}
+
 /// What two bodies collided. Body 0 is the pedestal, body k (1-6) is link k.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Contact {
@@ -115,7 +120,7 @@ impl CollisionModel {
     }
 }
 
-impl crate::simulate::Collides for CollisionModel {
+impl Collides for CollisionModel {
     fn contact(&self, o_m_i: &[Se3]) -> Option<Contact> {
         self.check(o_m_i)
     }

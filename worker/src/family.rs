@@ -25,9 +25,10 @@ use dynforge_robot::{Model, ModelError};
 use dynforge_shard::Metadata;
 use nalgebra::Vector3;
 
-use crate::collision::Contact;
-use crate::job::{JobError, Outcome, job_metadata, write_shard};
-use crate::simulate::{Arm, Collides, Discard, Recording, Reference, SimConfig, simulate, unsupported};
+use crate::collision::{Collides, Contact};
+use crate::output::{JobError, Outcome, job_metadata, write_shard};
+use crate::simulate::{Arm, Discard, Recording, SimConfig, simulate, unsupported};
+use crate::trajectory::Reference;
 
 /// Why a family cannot be simulated at all (as opposed to one variant's discard).
 #[derive(Debug, thiserror::Error)]

@@ -10,6 +10,7 @@ pub mod control;
 pub mod engine;
 pub mod family;
 pub mod job;
+pub mod output;
 pub mod serve;
 pub mod simulate;
 pub mod trajectory;

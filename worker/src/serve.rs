@@ -6,7 +6,8 @@ use dynforge_ipc::{IpcError, JobReport, JobRequest, RunId, Worker};
 use dynforge_proto::manifest::{Manifest, ManifestError};
 use dynforge_proto::run_dir::{MANIFEST, SHARDS};
 
-use crate::job::{Outcome, Runner};
+use crate::job::Runner;
+use crate::output::Outcome;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {

@@ -2,29 +2,13 @@
 
 use dynforge_proto::sim::EngineKind;
 pub use dynforge_proto::sim::SimConfig;
-use dynforge_robot::spatial::Se3;
 use dynforge_robot::{Data, Model, crba, energy, point_jacobian, rnea};
 use nalgebra::Vector3;
 
-use crate::collision::Contact;
+use crate::collision::{Collides, Contact};
 use crate::control::Pid;
 use crate::engine::{Engine, NativeEngine, RAPIER_SUBSTEPS, RapierEngine};
-use crate::trajectory::PlanError;
-
-/// What a run follows: a reference that starts at rest at `start` and ends at rest at `goal` after `total` seconds.
-pub trait Reference {
-    fn start(&self) -> &[f64];
-    fn goal(&self) -> &[f64];
-    /// Duration of the run [s].
-    fn total(&self) -> f64;
-    /// Reference position, velocity and acceleration at time `t`.
-    fn at(&self, t: f64) -> [Vec<f64>; 3];
-}
-
-/// A robot's collision bodies: the first contact in the configuration whose link frames are `o_m_i`.
-pub trait Collides {
-    fn contact(&self, o_m_i: &[Se3]) -> Option<Contact>;
-}
+use crate::trajectory::{PlanError, Reference};
 
 /// The arm a run simulates: its model, the point whose height the gravity-aware gain follows (a link and a point in
 /// that link's frame), its collision bodies, and the model its controller's feedforward believes in, if it has one

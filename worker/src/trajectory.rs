@@ -18,7 +18,16 @@ use dynforge_robot::rng::{Rng, domain};
 use dynforge_robot::{Data, Model, forward_kinematics};
 
 use crate::collision::CollisionModel;
-use crate::simulate::Reference;
+
+/// What a run follows: a reference that starts at rest at `start` and ends at rest at `goal` after `total` seconds.
+pub trait Reference {
+    fn start(&self) -> &[f64];
+    fn goal(&self) -> &[f64];
+    /// Duration of the run [s].
+    fn total(&self) -> f64;
+    /// Reference position, velocity and acceleration at time `t`.
+    fn at(&self, t: f64) -> [Vec<f64>; 3];
+}
 
 /// Joint-space configuration of a generated (6-joint) arm: the tours plan for the generator's robots only.
 pub type Config6 = [f64; 6];

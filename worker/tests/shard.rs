@@ -8,7 +8,8 @@ use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
 use dynforge_robot::generator::GeneratorConfig;
 use dynforge_robot::parameters::labels_of;
 use dynforge_robot::urdf;
-use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::output::Outcome;
 use dynforge_worker::simulate::{Discard, SimConfig};
 
 const JOB: Job = Job { seed: 3, robot: 2, trajectory: 5 };

@@ -3,7 +3,7 @@
 use dynforge_robot::generator::{GeneratorConfig, generate};
 use dynforge_robot::{Data, forward_kinematics};
 use dynforge_worker::collision::{CollisionModel, Contact};
-use dynforge_worker::simulate::Reference;
+use dynforge_worker::trajectory::Reference;
 use dynforge_worker::trajectory::{Move, PathChecker, TrajectoryConfig, waypoints};
 
 #[test]

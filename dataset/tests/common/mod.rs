@@ -4,7 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
-use dynforge_worker::job::{Job, Outcome, Runner};
+use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::output::Outcome;
 use dynforge_worker::simulate::SimConfig;
 
 /// Simulates `job` with the default configuration and writes its shard into `dir`; the shard's path and robot.

@@ -1,0 +1,83 @@
+//! What a job leaves: its shard (the recording as joint states, its job record and labels), or its discard.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use dynforge_proto::job::Job;
+use dynforge_proto::shard::{JointState, SHARD_VERSION};
+use dynforge_shard::{Metadata, ShardContent, ShardError};
+
+use crate::simulate::{Discard, Recording, SimConfig};
+
+/// What a job produced.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Written { path: PathBuf, samples: usize, duration: f64, saturated: f64, content_hash: u64 },
+    Discarded(Discard),
+}
+
+/// Failures that are not the simulation's (those are discards): bad configuration, unwritable output.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    #[error(transparent)]
+    Model(#[from] dynforge_robot::ModelError),
+    #[error(transparent)]
+    Shard(#[from] ShardError),
+    /// A family's variant could not be drawn (its URDF was checked before the run: this is a bug, not a discard).
+    #[error("drawing the family's variant: {0}")]
+    Family(String),
+}
+
+/// A shard's job record: the job, the simulation, the versions, and where its robot comes from (`source`: the
+/// generator's version, or the family's URDF hash).
+pub(crate) fn job_metadata(job: &Job, sim: &SimConfig, source: (&str, String)) -> BTreeMap<String, String> {
+    BTreeMap::from([
+        ("seed".to_string(), job.seed.to_string()),
+        ("robot".to_string(), job.robot.to_string()),
+        ("trajectory".to_string(), job.trajectory.to_string()),
+        ("engine".to_string(), sim.engine.name().to_string()),
+        ("dt".to_string(), format!("{}", sim.dt)),
+        (source.0.to_string(), source.1),
+        ("shard_version".to_string(), SHARD_VERSION.to_string()),
+        ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+    ])
+}
+
+/// Writes the shard of a recording of `model` (described by `urdf`) at `path`.
+pub(crate) fn write_shard(
+    path: &Path,
+    model: &dynforge_robot::Model,
+    urdf: &str,
+    rec: &Recording,
+    metadata: &Metadata,
+) -> Result<Outcome, JobError> {
+    let messages = joint_states(model, rec);
+    let content_hash = dynforge_shard::write(path, &ShardContent { urdf, joint_states: &messages, metadata })?;
+    Ok(Outcome::Written {
+        path: path.to_path_buf(),
+        samples: rec.len(),
+        duration: rec.duration(),
+        saturated: rec.saturated,
+        content_hash,
+    })
+}
+
+/// The recording as ROS 2 joint-state messages stamped with sim time.
+pub fn joint_states(model: &dynforge_robot::Model, rec: &Recording) -> Vec<JointState> {
+    let names: std::sync::Arc<[String]> = model.joints().iter().map(|j| j.name.clone()).collect();
+    let dt_ns = (rec.dt * 1e9).round() as i64;
+    (0..rec.len())
+        .map(|k| {
+            let t = k as i64 * dt_ns;
+            JointState {
+                sec: (t / 1_000_000_000) as i32,
+                nanosec: (t % 1_000_000_000) as u32,
+                frame_id: String::new(),
+                name: names.clone(),
+                position: rec.q[k].clone(),
+                velocity: rec.qd[k].clone(),
+                effort: rec.tau[k].clone(),
+            }
+        })
+        .collect()
+}
