@@ -275,13 +275,13 @@ impl Cached for PhysicsSet {
         let mut out = PhysicsSet::new(spec, rank);
         let mut moved: Vec<Vec<u64>> = parts.iter().map(|p| vec![0; p.recordings.len()]).collect();
         let robots = |f: fn(&PhysicsSet) -> &EvidenceList| parts.iter().map(|p| &f(p).robots[..]).collect::<Vec<_>>();
-        for (p, items) in super::partitions::merged_order(&robots(|s| &s.recordings)) {
+        for (p, items) in super::merged_order(&robots(|s| &s.recordings)) {
             for i in items {
                 moved[p][i] = out.recordings.len() as u64;
                 out.recordings.push_from(&parts[p].recordings, i, moved[p][i]);
             }
         }
-        for (p, items) in super::partitions::merged_order(&robots(|s| &s.windows)) {
+        for (p, items) in super::merged_order(&robots(|s| &s.windows)) {
             for i in items {
                 let list = &parts[p].windows;
                 out.windows.push_from(list, i, moved[p][list.recording[i] as usize]);

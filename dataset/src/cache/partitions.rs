@@ -7,7 +7,6 @@
 //! merged directory would build from its shards.
 
 use std::collections::BTreeSet;
-use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_atomic};
@@ -41,22 +40,6 @@ pub enum PartitionsError {
 fn io(path: &Path) -> impl Fn(std::io::Error) -> PartitionsError {
     let path = path.display().to_string();
     move |source| PartitionsError::Io { path: path.clone(), source }
-}
-
-/// The items of several partitions' lists (each the robot of every item), in merged order: (partition, items).
-pub(crate) fn merged_order(parts: &[&[u64]]) -> Vec<(usize, Range<usize>)> {
-    let mut blocks = Vec::new();
-    for (p, robots) in parts.iter().enumerate() {
-        let mut start = 0;
-        for i in 1..=robots.len() {
-            if i == robots.len() || robots[i] != robots[start] {
-                blocks.push((dynforge_proto::shard::robot_prefix(robots[start]), p, start..i));
-                start = i;
-            }
-        }
-    }
-    blocks.sort_by(|a, b| a.0.cmp(&b.0));
-    blocks.into_iter().map(|(_, p, r)| (p, r)).collect()
 }
 
 /// The caches current in every partition of a run, which [`Plan::combine`] merges.
@@ -155,28 +138,4 @@ fn combine_files<C: Cached>(files: &[(Vec<u8>, PathBuf)]) -> Result<Vec<u8>, Par
         Some(lists) => encode_file(&combined, &lists.into_iter().flatten().collect()),
         None => combined.encode(),
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn robots_merge_in_shard_name_order_blocks_kept_whole() {
-        // Partition a: robots 999999 (two items) and 4; b: 1000000 and 100000. Shard names sort r000004 <
-        // r100000-t < r1000000 < r999999: not numeric past six digits.
-        let a = [999_999, 999_999, 4];
-        let b = [1_000_000, 100_000, 100_000];
-        let order = merged_order(&[&a, &b]);
-        assert_eq!(order, vec![(0, 2..3), (1, 1..3), (1, 0..1), (0, 0..2)]);
-        let mut names: Vec<String> = [999_999, 4, 1_000_000, 100_000]
-            .iter()
-            .map(|&r| dynforge_proto::shard::file_name(r, 0, "native"))
-            .collect();
-        names.sort();
-        let robots = |p: usize, i: usize| if p == 0 { a[i] } else { b[i] };
-        let by_order: Vec<String> =
-            order.iter().map(|(p, r)| dynforge_proto::shard::file_name(robots(*p, r.start), 0, "native")).collect();
-        assert_eq!(by_order, names);
-    }
 }

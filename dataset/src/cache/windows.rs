@@ -185,7 +185,7 @@ impl Cached for CachedWindows {
     fn combine(parts: &[CachedWindows]) -> Result<CachedWindows, CombineError> {
         let mut out = CachedWindows::new(parts.first().map_or(WindowSpec::default(), |p| p.spec));
         let robots: Vec<&[u64]> = parts.iter().map(|p| &p.robots[..]).collect();
-        for (p, items) in super::partitions::merged_order(&robots) {
+        for (p, items) in super::merged_order(&robots) {
             let part = &parts[p];
             if out.count() > 0 && part.width != out.width {
                 return Err(CombineError(format!("windows of {} and {} values per step", part.width, out.width)));
