@@ -9,7 +9,8 @@ use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::manifest::Manifest;
 use dynforge_robot::Model;
 
-use crate::read::{ReadError, read};
+use crate::error::ReadError;
+use crate::read::read;
 
 /// The shard directory of `dir`: a `generate` directory's `shards/`, or `dir` itself.
 pub fn shard_dir(dir: &Path) -> PathBuf {

@@ -8,7 +8,8 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 
 use dynforge_shard::Bag;
 
-use crate::read::{Gap, ReadError, Reading, first_gap, read_bag};
+use crate::error::ReadError;
+use crate::read::{Gap, Reading, first_gap, read_bag};
 
 /// A log's summary.
 #[derive(Debug, Clone)]
@@ -68,7 +69,7 @@ impl Info {
         let first = sorted.first().copied().unwrap_or(0);
         let t: Vec<f64> = sorted.iter().map(|&s| (s - first) as f64 * 1e-9).collect();
         let gaps = first_gap(&t).map(|g| {
-            let n = t.windows(2).filter(|w| w[1] - w[0] > crate::log::GAP_PERIODS * g.period).count();
+            let n = t.windows(2).filter(|w| w[1] - w[0] > crate::samples::GAP_PERIODS * g.period).count();
             (g, n)
         });
         let clock = bag

@@ -11,6 +11,7 @@
 //! crate.
 
 pub mod dataset;
+mod error;
 pub mod info;
 pub mod log;
 mod read;
@@ -20,8 +21,9 @@ pub mod sqlite;
 pub mod table;
 
 pub use dynforge_shard::Bag;
+pub use error::ReadError;
 pub use read::{
-    GRID_DT, Gap, ReadError, Reading, Recording, check_not_an_input, first_gap, log_files, read, read_bag,
-    read_shard_bytes, recording_of, robot_document,
+    GRID_DT, Gap, Reading, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,
+    recording_of, robot_document,
 };
 pub use samples::JointTrajectory;

@@ -10,13 +10,10 @@ use dynforge_robot::Model;
 use dynforge_robot::urdf::{self, Welds};
 use dynforge_shard::Bag;
 
-use crate::read::{ReadError, Reading, read_bag};
+use crate::error::ReadError;
+use crate::read::{Reading, read_bag};
 use crate::resample::resample;
-use crate::samples::{JointTrajectory, from_bag_any_velocity};
-
-/// A stamp this many median periods after the previous one starts a new segment; smaller gaps (a dropped message)
-/// are interpolated over.
-pub const GAP_PERIODS: f64 = 5.0;
+use crate::samples::{GAP_PERIODS, JointTrajectory, from_bag_any_velocity};
 
 /// Segments shorter than this many samples are left out: too short for the differences identification takes.
 pub const MIN_SEGMENT: usize = 16;

@@ -6,24 +6,12 @@ use dynforge_proto::shard::{META_JOB, META_LABELS};
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_robot::{Model, urdf};
 
-use crate::log::GAP_PERIODS;
+use crate::error::ReadError;
 use crate::resample::resample;
-use crate::samples::{JointTrajectory, SamplesError, from_bag};
+use crate::samples::{GAP_PERIODS, JointTrajectory, from_bag};
 
 /// Period of the uniform grid recordings are put on [s]: the simulator's and the paper's 1 kHz.
 pub const GRID_DT: f64 = 1e-3;
-
-#[derive(Debug, thiserror::Error)]
-pub enum ReadError {
-    #[error(transparent)]
-    Shard(#[from] dynforge_shard::ShardError),
-    #[error(transparent)]
-    Samples(#[from] SamplesError),
-    #[error(transparent)]
-    Manifest(#[from] dynforge_proto::manifest::ManifestError),
-    #[error("{file}: {problem}")]
-    Content { file: String, problem: String },
-}
 
 /// A recording ready for identification and windowing: the robot, its trajectory on the [`GRID_DT`] grid, and its
 /// labels if it has them.

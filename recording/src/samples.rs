@@ -5,6 +5,10 @@ use std::path::Path;
 use dynforge_proto::shard::JointState;
 use dynforge_shard::Bag;
 
+/// A stamp this many median periods after the previous one starts a new segment; smaller gaps (a dropped message)
+/// are interpolated over.
+pub const GAP_PERIODS: f64 = 5.0;
+
 /// Samples of a robot's joints: row-major `[t][joint]` arrays in the model's joint order.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct JointTrajectory {
@@ -227,7 +231,7 @@ impl JointTrajectory {
     pub fn clock(&mut self) -> Clock {
         let mut steps: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
         let skipped = median(&mut steps).map_or(0, |period| {
-            let ticks = |s: f64| s >= MISSED_TICK * period && s <= crate::log::GAP_PERIODS * period;
+            let ticks = |s: f64| s >= MISSED_TICK * period && s <= GAP_PERIODS * period;
             self.t.windows(2).filter(|w| ticks(w[1] - w[0])).count()
         });
         Clock { repeats: self.drop_repeats(), skipped }

@@ -9,7 +9,7 @@ use dynforge_proto::shard::{self as contract, JointState, JointStateDecoder};
 use dynforge_shard::{Bag, decode_message};
 use rusqlite::{Connection, OpenFlags};
 
-use crate::read::ReadError;
+use crate::error::ReadError;
 
 /// The extension rosbag2 gives its sqlite3 files.
 pub const EXTENSION: &str = "db3";

@@ -25,7 +25,7 @@ use std::sync::Arc;
 use dynforge_proto::shard::JointState;
 use dynforge_shard::{Bag, Metadata};
 
-use crate::read::ReadError;
+use crate::error::ReadError;
 
 /// Extensions read as tables.
 pub const EXTENSIONS: [&str; 4] = ["csv", "tsv", "txt", "dat"];
