@@ -9,15 +9,16 @@ use std::path::{Path, PathBuf};
 use crate::flags::{MAX_ROBOTS, weld, whole};
 use anyhow::{Context, Result};
 use clap::Args;
-use dynforge_coordinator::lock::LockError;
 use dynforge_coordinator::run::{GenerateConfig, GenerateError};
-use dynforge_identify::calibrate::family::{Degradation, MIN_VARIANTS, SpreadCalibration};
+use dynforge_identify::calibrate::family::{Degradation, FamilySpreads, MIN_VARIANTS};
 use dynforge_identify::calibrate::{
     Calibrated, Identification, Kind, Options, check_output, check_ran, identify_logs, identify_read, write_calibrated,
 };
 use dynforge_identify::signals::Conditioning;
 use dynforge_proto::content_hash;
 use dynforge_proto::family::DEFAULT_SPREAD;
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::lock::LockError;
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
@@ -25,7 +26,6 @@ use dynforge_proto::spread::Spread;
 use dynforge_recording::Reading;
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{read_log, read_logs};
-use dynforge_robot::generator::GeneratorConfig;
 use serde_json::json;
 
 use crate::generate::{default_workers, execute, worker_command};
@@ -195,7 +195,7 @@ fn family_spreads(
     document: Option<(&str, &str)>,
     degradation: &Degradation,
     options: &Options,
-) -> Result<SpreadCalibration> {
+) -> Result<FamilySpreads> {
     let key = json!({
         "degradation": degradation,
         "conditioning": format!("{:?}", options.conditioning),
@@ -206,7 +206,7 @@ fn family_spreads(
     });
     let path = dir.join(format!("spreads-{}.json", hex(&key)));
     if let Ok(text) = std::fs::read_to_string(&path)
-        && let Ok(spreads) = serde_json::from_str::<SpreadCalibration>(&text)
+        && let Ok(spreads) = serde_json::from_str::<FamilySpreads>(&text)
     {
         eprintln!("spreads: measured before at this noise ({})", path.display());
         return Ok(spreads);
@@ -242,7 +242,7 @@ fn family_spreads(
         }
     }
     bar.finish_and_clear();
-    let spreads = SpreadCalibration::fit(&pairs, refused)?;
+    let spreads = FamilySpreads::fit(&pairs, refused)?;
     write_atomic(&path, serde_json::to_string_pretty(&spreads)?.as_bytes())
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(spreads)
@@ -251,7 +251,7 @@ fn family_spreads(
 /// The calibration with what the family measured.
 struct Report<'a> {
     calibrated: &'a Calibrated,
-    spreads: &'a SpreadCalibration,
+    spreads: &'a FamilySpreads,
     dir: &'a Path,
 }
 

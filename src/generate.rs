@@ -10,10 +10,10 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use dynforge_coordinator::run::{self, GenerateConfig};
 use dynforge_coordinator::verify;
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::manifest::Partition;
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_proto::spread::Spread;
-use dynforge_robot::generator::GeneratorConfig;
 
 #[derive(Args)]
 pub struct GenerateArgs {

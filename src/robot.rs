@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_robot::generator::generate;
 use dynforge_robot::urdf;
 
 #[derive(Args)]

@@ -6,10 +6,11 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
 use dynforge_proto::sim::EngineKind;
 use dynforge_proto::sim::SimConfig;
-use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::job::Runner;
 use dynforge_worker::output::Outcome;
 
 #[derive(Args)]

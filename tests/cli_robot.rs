@@ -4,7 +4,9 @@ mod common;
 
 use common::dynforge;
 
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
+
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_robot::urdf;
 
 #[test]
@@ -66,7 +68,7 @@ fn bad_inputs_fail_with_a_message_naming_the_file() {
     std::fs::write(&cfg, "coulomb = [[1.0, 0.5], [0, 1], [0, 1], [0, 1], [0, 1], [0, 1]]\n").unwrap();
     let err = String::from_utf8(dynforge(&["robot", "--config", cfg.to_str().unwrap()]).stderr).unwrap();
     assert!(err.contains("coulomb[0]") && err.contains("non-negative numbers") && err.len() < 300, "{err}");
-    let mut k = dynforge_robot::generator::GeneratorConfig::default();
+    let mut k = dynforge_proto::generator::GeneratorConfig::default();
     k.kinematics.axes[3] = [0.0; 3];
     std::fs::write(&cfg, toml::to_string(&k).unwrap()).unwrap();
     let out = dynforge(&["robot", "--config", cfg.to_str().unwrap()]);

@@ -68,7 +68,7 @@ fn install(packages: &[&str]) {
 }
 
 fn ledger_set(dir: &Path) -> BTreeSet<String> {
-    let entries = dynforge_coordinator::ledger::read(&dir.join("ledger.tsv")).unwrap();
+    let entries = dynforge_proto::ledger::read(&dir.join("ledger.tsv")).unwrap();
     entries.iter().map(|e| format!("{e:?}")).collect()
 }
 
@@ -767,7 +767,7 @@ fn podman() -> Command {
 fn image() -> &'static str {
     static IMAGE: OnceLock<String> = OnceLock::new();
     IMAGE.get_or_init(|| {
-        let tag = format!("localhost/dynforge:test-{:016x}", dynforge_shard::content_hash(EXE.as_bytes()));
+        let tag = format!("localhost/dynforge:test-{:016x}", dynforge_proto::content_hash(EXE.as_bytes()));
         let build = run(Command::new(repo().join("deploy/container/build.sh")).args([
             "--binary",
             EXE,

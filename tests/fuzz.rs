@@ -5,9 +5,11 @@
 
 use std::path::Path;
 
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
 use dynforge_proto::sim::SimConfig;
-use dynforge_robot::generator::{GeneratorConfig, generate};
-use dynforge_worker::job::{Job, Runner};
+use dynforge_robot::generator::generate;
+use dynforge_worker::job::Runner;
 use dynforge_worker::output::Outcome;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
@@ -138,8 +140,8 @@ fn the_ledger_parser_never_panics() {
     let path = dir.path().join("ledger.tsv");
     let mut valid = String::new();
     {
-        let (mut ledger, _) = dynforge_coordinator::ledger::Ledger::open(&path).unwrap();
-        use dynforge_coordinator::ledger::{Entry, Status};
+        let (mut ledger, _) = dynforge_proto::ledger::Ledger::open(&path).unwrap();
+        use dynforge_proto::ledger::{Entry, Status};
         let statuses = [
             Status::Done { samples: 6000, shard_hash: 0x1234_5678_9abc_def0 },
             Status::Discarded { reason: "timeout".into() },
@@ -152,7 +154,7 @@ fn the_ledger_parser_never_panics() {
     }
     fuzz(valid.as_bytes(), 2000, |b| {
         std::fs::write(&path, b).unwrap();
-        if let Err(e) = dynforge_coordinator::ledger::read(&path) {
+        if let Err(e) = dynforge_proto::ledger::read(&path) {
             assert!(e.to_string().contains("ledger.tsv"), "an error that does not name the file: {e}");
         }
     });

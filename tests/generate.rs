@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use dynforge_coordinator::ledger;
+use dynforge_proto::ledger;
 
 const EXE: &str = env!("CARGO_BIN_EXE_dynforge");
 

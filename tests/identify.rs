@@ -3,8 +3,9 @@
 mod common;
 
 use common::dynforge;
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::{LABELS, LabelKind};
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
 use dynforge_robot::parameters::labels_of;
 
 fn stderr(o: &std::process::Output) -> String {

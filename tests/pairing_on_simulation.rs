@@ -2,11 +2,12 @@
 //! must reproduce the torques it logged, on every joint, stops and starts included.
 
 use dynforge_identify::NormalEquations;
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::sim::SimConfig;
 use dynforge_recording::JointTrajectory;
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
 use dynforge_robot::parameters::dynamic_parameters;
 use dynforge_worker::job::simulate_tour;
-use dynforge_worker::simulate::SimConfig;
 use dynforge_worker::trajectory::{Move, waypoints};
 
 #[test]

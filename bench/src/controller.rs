@@ -7,10 +7,11 @@
 use std::collections::BTreeMap;
 
 use anyhow::{Context, Result};
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
 use dynforge_proto::sim::EngineKind;
 use dynforge_proto::sim::SimConfig;
-use dynforge_robot::generator::GeneratorConfig;
-use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::job::Runner;
 use dynforge_worker::trajectory::Reference;
 
 fn percentile(v: &mut [f64], p: f64) -> f64 {

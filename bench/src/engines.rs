@@ -10,7 +10,8 @@
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_robot::generator::generate;
 use dynforge_robot::model::Friction;
 use dynforge_robot::{Data, Model, energy};
 use dynforge_worker::engine::{Engine, NativeEngine, RapierEngine};

@@ -15,4 +15,3 @@ pub mod status;
 pub mod verify;
 
 // The run directory's ledger and lock are file contracts every crate reading a run directory shares.
-pub use dynforge_proto::{ledger, lock};

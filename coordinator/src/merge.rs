@@ -18,9 +18,9 @@ use dynforge_proto::family::Sources;
 use dynforge_proto::manifest::{Manifest, ManifestError, Partition};
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
-use crate::ledger::{self, Status};
-use crate::lock::RunLock;
 use crate::verify::{VerifyError, verify};
+use dynforge_proto::ledger::{self, Status};
+use dynforge_proto::lock::RunLock;
 
 #[derive(Debug, thiserror::Error)]
 pub enum MergeError {
@@ -46,7 +46,7 @@ pub enum MergeError {
     #[error(transparent)]
     Ledger(#[from] ledger::LedgerError),
     #[error(transparent)]
-    Lock(#[from] crate::lock::LockError),
+    Lock(#[from] dynforge_proto::lock::LockError),
     #[error(transparent)]
     Family(#[from] dynforge_proto::family::FamilyError),
 }
@@ -110,7 +110,7 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     // The output: ours before anything is written.
     let _lock = RunLock::acquire(out, std::time::Duration::ZERO, "merge")?;
     let listing = std::fs::read_dir(out).map_err(|e| io(out, e))?;
-    if listing.filter_map(Result::ok).any(|e| e.file_name() != crate::lock::LOCK) {
+    if listing.filter_map(Result::ok).any(|e| e.file_name() != dynforge_proto::lock::LOCK) {
         return Err(MergeError::OutputNotEmpty(out.display().to_string()));
     }
     let mut merged = join_ledgers_and_shards(&by_index, out, &first)?;
@@ -233,9 +233,9 @@ fn join_ledgers_and_shards(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ledger::Entry;
     use crate::plan::{Plan, job_id};
     use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_proto::ledger::Entry;
     use dynforge_proto::sim::SimConfig;
     use std::collections::BTreeSet;
 

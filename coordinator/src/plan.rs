@@ -4,7 +4,7 @@
 use dynforge_proto::job::Job;
 use dynforge_proto::ledger::Entry;
 use dynforge_proto::manifest::Manifest;
-pub use dynforge_proto::manifest::Partition;
+use dynforge_proto::manifest::Partition;
 
 /// Stable identity of a job within a run, recorded in the ledger.
 pub fn job_id(job: &Job, trajectories: u32) -> u64 {

@@ -10,9 +10,9 @@ use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::manifest::Manifest;
 use dynforge_proto::run_dir::{self, LEDGER, SHARDS};
 
-use crate::ledger;
-use crate::lock::RunLock;
 use crate::verify::{VerifyError, verify};
+use dynforge_proto::ledger;
+use dynforge_proto::lock::RunLock;
 
 #[derive(Debug, thiserror::Error)]
 pub enum PruneError {
@@ -27,7 +27,7 @@ pub enum PruneError {
     #[error(transparent)]
     Ledger(#[from] ledger::LedgerError),
     #[error(transparent)]
-    Lock(#[from] crate::lock::LockError),
+    Lock(#[from] dynforge_proto::lock::LockError),
 }
 
 /// What a prune did: the cache that holds the shards' data (as `dynforge_dataset::prepare` describes it), and how
@@ -112,9 +112,10 @@ pub fn prune(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ledger::{Entry, Ledger, Status};
-    use crate::plan::{Partition, Plan, job_id};
+    use crate::plan::{Plan, job_id};
     use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_proto::ledger::{Entry, Ledger, Status};
+    use dynforge_proto::manifest::Partition;
     use dynforge_proto::sim::SimConfig;
     use std::path::PathBuf;
 
@@ -165,7 +166,7 @@ mod tests {
     #[test]
     fn a_run_whose_shards_do_not_verify_keeps_every_shard() {
         let bytes = b"not an mcap file";
-        let done = Status::Done { samples: 100, shard_hash: dynforge_shard::content_hash(bytes) };
+        let done = Status::Done { samples: 100, shard_hash: dynforge_proto::content_hash(bytes) };
         let (tmp, shards) = run_dir(&[done, discarded(), discarded(), discarded()], bytes);
         assert!(matches!(prune_it(tmp.path()), Err(PruneError::NotReady { .. })));
         for s in &shards {
@@ -177,7 +178,8 @@ mod tests {
     #[test]
     fn a_run_directory_someone_holds_is_not_pruned() {
         let (tmp, _) = run_dir(&[discarded(), discarded(), discarded(), discarded()], b"");
-        let _generating = crate::lock::RunLock::acquire(tmp.path(), Duration::ZERO, crate::run::GENERATING).unwrap();
+        let _generating =
+            dynforge_proto::lock::RunLock::acquire(tmp.path(), Duration::ZERO, crate::run::GENERATING).unwrap();
         assert!(matches!(prune_it(tmp.path()), Err(PruneError::Lock(_))));
     }
 }

@@ -7,9 +7,9 @@ use std::time::Duration;
 use dynforge_ipc::{RunId, StatusMsg, StatusReader};
 use dynforge_proto::run_dir::LEDGER;
 
-use crate::ledger;
 use crate::plan::Plan;
 use crate::run::Progress;
+use dynforge_proto::ledger;
 use dynforge_proto::manifest::Manifest;
 
 #[derive(Debug, thiserror::Error)]
@@ -30,7 +30,7 @@ pub enum RunStatus {
     Live(StatusMsg),
     /// None publishes here: the ledger's counts for the manifest's jobs. `holder` is who holds the directory's lock
     /// if someone does: a coordinator on another host sharing the directory (its status is in that host's memory).
-    Stopped { progress: Progress, pending: u64, holder: Option<crate::lock::Holder> },
+    Stopped { progress: Progress, pending: u64, holder: Option<dynforge_proto::lock::Holder> },
 }
 
 /// The standing of the run in `dir`.
@@ -54,7 +54,7 @@ fn stopped(dir: &Path) -> Result<RunStatus, StatusError> {
     let total = plan.len();
     let progress = Progress::from_ledger(total, &entries);
     let pending = total.saturating_sub(progress.finished());
-    Ok(RunStatus::Stopped { progress, pending, holder: crate::lock::holder(dir) })
+    Ok(RunStatus::Stopped { progress, pending, holder: dynforge_proto::lock::holder(dir) })
 }
 
 impl RunStatus {
@@ -117,9 +117,10 @@ impl std::fmt::Display for RunStatus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ledger::{Entry, Ledger, Status};
-    use crate::plan::{Partition, job_id};
+    use crate::plan::job_id;
     use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_proto::ledger::{Entry, Ledger, Status};
+    use dynforge_proto::manifest::Partition;
     use dynforge_proto::sim::SimConfig;
 
     const TRAJECTORIES: u32 = 2;
@@ -172,7 +173,7 @@ mod tests {
         assert_eq!(free.json()["live"], false);
         assert_eq!(free.json()["pending"], plan.len());
         assert!(free.to_string().starts_with("not running"), "{free}");
-        let _lock = crate::lock::RunLock::acquire(dir.path(), Duration::ZERO, "generate").unwrap();
+        let _lock = dynforge_proto::lock::RunLock::acquire(dir.path(), Duration::ZERO, "generate").unwrap();
         let held = stopped(dir.path()).unwrap();
         assert_eq!(held.json()["live"], true, "a coordinator on another host shares the directory");
         let holder = held.json()["holder"].as_str().unwrap().to_string();

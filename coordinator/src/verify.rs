@@ -8,9 +8,9 @@ use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
 use dynforge_proto::shard::{META_JOB, META_LABELS};
 
-use crate::ledger::{self, Entry, Status};
-use crate::lock::Holder;
 use crate::plan::{self, Plan};
+use dynforge_proto::ledger::{self, Entry, Status};
+use dynforge_proto::lock::Holder;
 use dynforge_proto::manifest::Manifest;
 
 /// What `verify` found.
@@ -118,7 +118,7 @@ pub enum VerifyError {
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
     #[error(transparent)]
-    Lock(#[from] crate::lock::LockError),
+    Lock(#[from] dynforge_proto::lock::LockError),
 }
 
 /// The robot and trajectory of the shard named `name` of a run simulated by `engine`; `None` for a name no job of
@@ -159,7 +159,7 @@ pub enum ShardProblem {
 /// joint), the generator's with the paper's 38.
 fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64, family: bool) -> Result<(), ShardProblem> {
     let bytes = std::fs::read(path)?;
-    if dynforge_shard::content_hash(&bytes) != hash {
+    if dynforge_proto::content_hash(&bytes) != hash {
         return Err(ShardProblem::Hash);
     }
     let bag = dynforge_shard::read_bytes(&bytes, path)?;
@@ -198,7 +198,7 @@ pub fn verify(dir: &Path, mut progress: impl FnMut(usize, usize)) -> Result<Repo
     let entries = ledger::read(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();
     let shards = dir.join(SHARDS);
-    let mut report = Report { live: crate::lock::holder(dir), ..Report::default() };
+    let mut report = Report { live: dynforge_proto::lock::holder(dir), ..Report::default() };
     let pruned = dynforge_proto::run_dir::read_pruned(dir).map_err(|source| VerifyError::Io {
         path: dir.join(dynforge_proto::run_dir::PRUNED).display().to_string(),
         source,
@@ -280,7 +280,7 @@ pub const QUARANTINE: &str = "quarantine";
 /// `DIR/quarantine/`, and each of those jobs gets a `failed` ledger entry naming the reason (a resume retries failed
 /// jobs). Takes the directory's lock, so it refuses while a generation runs. Returns the jobs marked.
 pub fn repair(dir: &Path, report: &Report) -> Result<usize, VerifyError> {
-    let _lock = crate::lock::RunLock::acquire(dir, std::time::Duration::ZERO, "verify --repair")?;
+    let _lock = dynforge_proto::lock::RunLock::acquire(dir, std::time::Duration::ZERO, "verify --repair")?;
     let manifest = Manifest::load(dir)?.ok_or_else(|| VerifyError::NoManifest(dir.display().to_string()))?;
     let (mut ledger, entries) = ledger::Ledger::open(&dir.join(LEDGER))?;
     let engine = manifest.sim.engine.name();

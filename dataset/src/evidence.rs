@@ -14,9 +14,10 @@ use dynforge_identify::{
 };
 use dynforge_proto::NUM_LABELS;
 use dynforge_proto::content_hash;
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_recording::dataset::generator;
 use dynforge_recording::{ReadError, Recording};
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
 use dynforge_robot::parameters::dynamic_parameters;
 
 use crate::window::WindowSpec;

@@ -119,7 +119,8 @@ impl JacobianFeatures {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynforge_robot::generator::{GeneratorConfig, generate};
+    use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_robot::generator::generate;
 
     #[test]
     fn features_are_the_robot_crates_jacobian_entries_at_the_link_tips() {

@@ -26,7 +26,7 @@ use dynforge_dataset::split::{HoldOut, SplitRule};
 use dynforge_dataset::window::WindowSpec;
 use identification::IdentificationCheck;
 use recording::{RecordingError, normal_equations, physical_parameters};
-use spread::SpreadCalibration;
+use spread::ValidationSpreads;
 use torque::TorqueRow;
 
 /// An estimate of one robot, with what its evidence says of its spread.
@@ -111,7 +111,7 @@ pub struct Report {
     /// How the spreads `estimate` prints are calibrated to hold (`None` when not measured: too few validation robots,
     /// or not asked for).
     #[serde(default)]
-    pub spread_calibration: Option<SpreadCalibration>,
+    pub spread_calibration: Option<ValidationSpreads>,
 }
 
 impl Report {

@@ -39,8 +39,9 @@ pub fn physical_parameters(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dynforge_proto::generator::GeneratorConfig;
     use dynforge_recording::GRID_DT;
-    use dynforge_robot::generator::{GeneratorConfig, generate};
+    use dynforge_robot::generator::generate;
     use dynforge_robot::parameters::labels_of;
 
     #[test]

@@ -181,7 +181,7 @@ impl Calibration {
 
 /// How `evaluate` calibrated the estimator's and the refined spreads on its validation robots, at several log counts.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct SpreadCalibration {
+pub struct ValidationSpreads {
     /// Validation robots measured.
     pub robots: usize,
     /// By log count, increasing: 1, 2, 4, ... up to the validation robots' own count.
@@ -208,7 +208,7 @@ pub struct Coverage {
     pub within_two: f64,
 }
 
-impl SpreadCalibration {
+impl ValidationSpreads {
     /// The estimator's and the refinement's calibrations for an estimate from `logs` logs: between the two measured
     /// counts around it, linearly in the logarithm of the count (errors of independent logs fall like a power of
     /// their number); the last count's beyond it.
@@ -564,7 +564,7 @@ pub(crate) fn fit(
     data: &Path,
     max_robots: usize,
     progress: &mut impl FnMut(&str, usize, usize),
-) -> Result<Option<SpreadCalibration>, EvaluationError> {
+) -> Result<Option<ValidationSpreads>, EvaluationError> {
     let robots: Vec<(u64, Vec<PathBuf>)> = shards_by_robot(data)
         .unwrap_or_default()
         .into_iter()
@@ -645,7 +645,7 @@ pub(crate) fn fit(
     if calibrated.is_empty() {
         return Ok(None);
     }
-    Ok(Some(SpreadCalibration { robots: measured.len(), counts: calibrated }))
+    Ok(Some(ValidationSpreads { robots: measured.len(), counts: calibrated }))
 }
 
 /// The stream of the validation logs' effort noise, apart from any other draw of a robot's.
@@ -768,7 +768,7 @@ mod tests {
             refined: r,
             coverage: vec![],
         };
-        let s = SpreadCalibration {
+        let s = ValidationSpreads {
             robots: 10,
             counts: vec![
                 at(1, c(1.0, 1.0), c(1.0, 0.0)),

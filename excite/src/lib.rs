@@ -15,7 +15,6 @@ pub mod write;
 
 pub use collision::SelfCollision;
 pub use design::{Clearance, Design, MAX_DESIGN_SAMPLES, MAX_WRITTEN_SAMPLES, design, design_with, start_pose};
-pub use dynforge_proto::fourier::Fourier;
 pub use options::Options;
 
 #[derive(Debug, thiserror::Error)]

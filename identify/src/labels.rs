@@ -57,7 +57,8 @@ pub fn labels_of_parameters(pi: &[f64]) -> [f64; NUM_LABELS] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use dynforge_robot::generator::{GeneratorConfig, generate};
+    use dynforge_proto::generator::GeneratorConfig;
+    use dynforge_robot::generator::generate;
     use dynforge_robot::parameters::{labels_of, model_with_labels};
 
     #[test]

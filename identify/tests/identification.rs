@@ -1,10 +1,11 @@
 //! Identification on motions with exactly known torques (inverse dynamics of analytic joint trajectories).
 
 use dynforge_identify::{NormalEquations, Prior, least_squares, parameters_of_labels, refine};
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::{LABELS, LabelKind, NUM_LABELS};
 use dynforge_recording::JointTrajectory;
 use dynforge_robot::Model;
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
 use dynforge_robot::parameters::{dynamic_parameters, labels_of};
 use dynforge_testkit::sinusoid_recording;
 

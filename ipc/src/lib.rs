@@ -32,7 +32,6 @@ mod types;
 mod worker;
 
 pub use coordinator::{Coordinator, REPOKE_INTERVAL};
-pub use dynforge_proto::job::{Job, JobReport, JobRequest};
 pub use error::IpcError;
 pub use monitor::StatusReader;
 pub use run::{RunId, cleanup_stale};

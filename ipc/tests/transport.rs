@@ -8,7 +8,8 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use common::{TestRun, Workers, process_cpu, start, thread_cpu, wait_ready};
-use dynforge_ipc::{Coordinator, IpcError, Job, JobReport, JobRequest, StatusMsg, StatusReader};
+use dynforge_ipc::{Coordinator, IpcError, StatusMsg, StatusReader};
+use dynforge_proto::job::{Job, JobReport, JobRequest};
 
 fn job(job_id: u64, seed: u64, robot: u64, trajectory: u32) -> JobRequest {
     JobRequest { job_id, job: Job { seed, robot, trajectory } }

@@ -20,7 +20,6 @@ pub mod samples;
 pub mod sqlite;
 pub mod table;
 
-pub use dynforge_shard::Bag;
 pub use error::ReadError;
 pub use read::{
     GRID_DT, Gap, Reading, Recording, check_not_an_input, first_gap, log_files, read, read_bag, read_shard_bytes,

@@ -264,8 +264,9 @@ pub fn com_coordinates(l: usize) -> [usize; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::generator::{GeneratorConfig, generate};
+    use crate::generator::generate;
     use crate::rng::Rng;
+    use dynforge_proto::generator::GeneratorConfig;
 
     fn prior() -> (Model, CoordinatePrior) {
         let model = generate(&GeneratorConfig::default(), 3, 1).expect("a generated robot").model;

@@ -3,7 +3,9 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
+
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_robot::{Data, aba, crba, energy, forward_kinematics, friction_torque, point_jacobian, regressor, rnea};
 use nalgebra::Vector3;
 

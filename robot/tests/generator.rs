@@ -1,7 +1,8 @@
 //! The robot generator: determinism, validity and the configured ranges.
 
+use dynforge_proto::generator::{GeneratorConfig, SectionKind};
 use dynforge_proto::{LABELS, LabelKind};
-use dynforge_robot::generator::{GeneratorConfig, SectionKind, generate};
+use dynforge_robot::generator::generate;
 use dynforge_robot::model::check_physical;
 use dynforge_robot::parameters::labels_of;
 use std::collections::HashSet;

@@ -164,7 +164,7 @@ pub fn write_joint_trajectory(
     )
 }
 
-pub use dynforge_proto::content_hash;
+use dynforge_proto::content_hash;
 
 /// A decoded bag or shard.
 #[derive(Debug, Clone, PartialEq, Default)]

@@ -3,8 +3,9 @@
 use std::io::IsTerminal;
 use std::time::Instant;
 
+use dynforge_dataset::metrics::EpochMetrics;
+use dynforge_trainer::training::TrainObserver;
 use dynforge_trainer::training::session::SessionObserver;
-use dynforge_trainer::training::{EpochMetrics, TrainObserver};
 use indicatif::{ProgressBar, ProgressStyle};
 
 /// A progress bar on standard error, hidden when it is not a terminal.

@@ -37,7 +37,7 @@ pub fn shard_hashes(dir: &std::path::Path) -> std::collections::BTreeMap<String,
             let e = e.unwrap();
             (
                 e.file_name().to_string_lossy().to_string(),
-                dynforge_shard::content_hash(&std::fs::read(e.path()).unwrap()),
+                dynforge_proto::content_hash(&std::fs::read(e.path()).unwrap()),
             )
         })
         .collect()

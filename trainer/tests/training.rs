@@ -10,12 +10,13 @@ use burn::tensor::Device;
 use dynforge_dataset::cache::windows::CachedWindows;
 use dynforge_dataset::examples::corpus::Corpus;
 use dynforge_dataset::features::JacobianFeatures;
+use dynforge_dataset::metrics::EpochMetrics;
 use dynforge_dataset::normalize::Standardizer;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_robot::rng::Rng;
 use dynforge_trainer::checkpoint::Checkpoint;
 use dynforge_trainer::model::{NetworkConfig, TransformerConfig};
-use dynforge_trainer::training::{EpochMetrics, Run, TrainConfig, TrainObserver, predict, train};
+use dynforge_trainer::training::{Run, TrainConfig, TrainObserver, predict, train};
 
 const LEN: usize = 8;
 const WIDTH: usize = 5;

@@ -18,7 +18,7 @@
 //! The integral term is kept as a torque, so gain changes are bumpless. Tuning (bench/simulation.sh, 100 robots):
 //! see docs/measurements.md.
 
-pub use dynforge_proto::sim::PidGains;
+use dynforge_proto::sim::PidGains;
 use nalgebra::DMatrix;
 
 /// Gains of one joint loop at the current pose (`kp` includes the gravity-aware term).

@@ -27,8 +27,9 @@ use nalgebra::Vector3;
 
 use crate::collision::{Collides, Contact};
 use crate::output::{JobError, Outcome, job_metadata, write_shard};
-use crate::simulate::{Arm, Discard, Recording, SimConfig, simulate, unsupported};
+use crate::simulate::{Arm, Discard, Simulation, simulate, unsupported};
 use crate::trajectory::Reference;
+use dynforge_proto::sim::SimConfig;
 
 /// Why a family cannot be simulated at all (as opposed to one variant's discard).
 #[derive(Debug, thiserror::Error)]
@@ -215,7 +216,7 @@ impl FamilyRunner {
     }
 
     /// Simulates a job without writing anything: the variant, and its recording or why it was discarded.
-    pub fn simulate(&self, job: &Job, sim: &SimConfig) -> Result<(Model, Result<Recording, Discard>), JobError> {
+    pub fn simulate(&self, job: &Job, sim: &SimConfig) -> Result<(Model, Result<Simulation, Discard>), JobError> {
         let sim = &self.gains(sim);
         let model = self.variant(job.seed, job.robot).map_err(|e| JobError::Family(e.to_string()))?;
         let series = &self.excitations[job.trajectory as usize % self.excitations.len()].series;

@@ -5,9 +5,10 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use dynforge_proto::LABELS;
-pub use dynforge_proto::job::Job;
+use dynforge_proto::generator::{GENERATOR_VERSION, GeneratorConfig};
+use dynforge_proto::job::Job;
 use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
-use dynforge_robot::generator::{GENERATOR_VERSION, GeneratedRobot, GeneratorConfig, generate};
+use dynforge_robot::generator::{GeneratedRobot, generate};
 use dynforge_robot::parameters::labels_of;
 use dynforge_shard::Metadata;
 
@@ -16,13 +17,14 @@ use nalgebra::Vector3;
 use crate::collision::CollisionModel;
 use crate::family::FamilyRunner;
 use crate::output::{JobError, Outcome, job_metadata, write_shard};
-use crate::simulate::{Arm, Discard, Recording, SimConfig, simulate};
+use crate::simulate::{Arm, Discard, Simulation, simulate};
 use crate::trajectory::{Config6, Move, PlanError, waypoints};
+use dynforge_proto::sim::SimConfig;
 
 /// A simulated job: the robot, and its move with the recording or the discard.
 pub struct Simulated {
     pub robot: GeneratedRobot,
-    pub result: Result<(Move, Recording), Discard>,
+    pub result: Result<(Move, Simulation), Discard>,
 }
 
 /// A generated robot and its waypoint tour (or why none was found), for (seed, robot).
@@ -119,7 +121,7 @@ impl Runner {
 
 /// Simulates a move of a generated robot, checked against its own bodies: the gravity-aware gain follows the tip of
 /// its last beam.
-pub fn simulate_tour(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Recording, Discard> {
+pub fn simulate_tour(robot: &GeneratedRobot, mv: &Move, cfg: &SimConfig) -> Result<Simulation, Discard> {
     let last = robot.beams.len() - 1;
     let collision = CollisionModel::new(robot, 0.0);
     let arm = Arm {

@@ -7,7 +7,9 @@ use dynforge_proto::job::Job;
 use dynforge_proto::shard::{JointState, SHARD_VERSION};
 use dynforge_shard::{Metadata, ShardContent, ShardError};
 
-use crate::simulate::{Discard, Recording, SimConfig};
+use crate::simulate::{Discard, Simulation};
+
+use dynforge_proto::sim::SimConfig;
 
 /// What a job produced.
 #[derive(Debug, Clone, PartialEq)]
@@ -48,7 +50,7 @@ pub(crate) fn write_shard(
     path: &Path,
     model: &dynforge_robot::Model,
     urdf: &str,
-    rec: &Recording,
+    rec: &Simulation,
     metadata: &Metadata,
 ) -> Result<Outcome, JobError> {
     let messages = joint_states(model, rec);
@@ -63,7 +65,7 @@ pub(crate) fn write_shard(
 }
 
 /// The recording as ROS 2 joint-state messages stamped with sim time.
-pub fn joint_states(model: &dynforge_robot::Model, rec: &Recording) -> Vec<JointState> {
+pub fn joint_states(model: &dynforge_robot::Model, rec: &Simulation) -> Vec<JointState> {
     let names: std::sync::Arc<[String]> = model.joints().iter().map(|j| j.name.clone()).collect();
     let dt_ns = (rec.dt * 1e9).round() as i64;
     (0..rec.len())

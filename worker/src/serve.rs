@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use dynforge_ipc::{IpcError, JobReport, JobRequest, RunId, Worker};
+use dynforge_ipc::{IpcError, RunId, Worker};
+
+use dynforge_proto::job::{JobReport, JobRequest};
 use dynforge_proto::manifest::{Manifest, ManifestError};
 use dynforge_proto::run_dir::{MANIFEST, SHARDS};
 

@@ -1,7 +1,7 @@
 //! One trajectory of one robot: reference, controller, engine, failure checks, recording.
 
 use dynforge_proto::sim::EngineKind;
-pub use dynforge_proto::sim::SimConfig;
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::{Data, Model, crba, energy, point_jacobian, rnea};
 use nalgebra::Vector3;
 
@@ -66,7 +66,7 @@ impl Discard {
 
 /// The logged 1 kHz data: sample `k` is the state at `t = k dt` and the motor torque applied over `[t, t + dt)`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Recording {
+pub struct Simulation {
     pub dt: f64,
     pub q: Vec<Vec<f64>>,
     pub qd: Vec<Vec<f64>>,
@@ -75,7 +75,7 @@ pub struct Recording {
     pub saturated: f64,
 }
 
-impl Recording {
+impl Simulation {
     pub fn len(&self) -> usize {
         self.q.len()
     }
@@ -129,7 +129,7 @@ fn check_state(model: &Model, q: &[f64], qd: &[f64], t: f64, cfg: &SimConfig) ->
 }
 
 /// Simulates `reference` on `arm`, starting at rest in equilibrium at its start.
-pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result<Recording, Discard> {
+pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result<Simulation, Discard> {
     let model = arm.model;
     let n = model.dof();
     let mut engine = engine_for(cfg.engine, model, cfg.dt)?;
@@ -146,7 +146,7 @@ pub fn simulate(arm: &Arm, reference: &dyn Reference, cfg: &SimConfig) -> Result
     let rest = vec![0.0; n];
     engine.reset(start, &rest);
     let steps = (reference.total() / cfg.dt).round() as usize;
-    let mut rec = Recording {
+    let mut rec = Simulation {
         dt: cfg.dt,
         q: Vec::with_capacity(steps),
         qd: Vec::with_capacity(steps),

@@ -11,7 +11,7 @@
 //! `min_move` seconds; then the reference holds the goal for `hold` seconds. With the defaults a trajectory lasts at
 //! least 6 s, enough for a 64 x 64 ms window plus offsets.
 
-pub use dynforge_proto::sim::TrajectoryConfig;
+use dynforge_proto::sim::TrajectoryConfig;
 use dynforge_proto::sim::straight_path_free;
 use dynforge_robot::generator::GeneratedRobot;
 use dynforge_robot::rng::{Rng, domain};

@@ -1,11 +1,13 @@
 //! The native engine against physics: energy conservation, stick/slip, and inverse dynamics of its own output.
 
-use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
+use dynforge_robot::generator::{GeneratedRobot, generate};
+
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::model::Friction;
 use dynforge_robot::{Data, crba, energy, friction_torque, gravity_torque, rnea};
 use dynforge_worker::engine::{Engine, NativeEngine, RapierEngine};
 use dynforge_worker::job::simulate_tour;
-use dynforge_worker::simulate::SimConfig;
 use dynforge_worker::trajectory::{Move, waypoints};
 
 fn robot(id: u64) -> GeneratedRobot {

@@ -4,13 +4,15 @@
 use std::path::Path;
 
 use dynforge_proto::LABELS;
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
 use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
-use dynforge_robot::generator::GeneratorConfig;
+use dynforge_proto::sim::SimConfig;
 use dynforge_robot::parameters::labels_of;
 use dynforge_robot::urdf;
-use dynforge_worker::job::{Job, Runner};
+use dynforge_worker::job::Runner;
 use dynforge_worker::output::Outcome;
-use dynforge_worker::simulate::{Discard, SimConfig};
+use dynforge_worker::simulate::Discard;
 
 const JOB: Job = Job { seed: 3, robot: 2, trajectory: 5 };
 

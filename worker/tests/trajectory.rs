@@ -1,10 +1,13 @@
 //! Waypoints and moves.
 
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_robot::generator::generate;
+
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::sim::TrajectoryConfig;
 use dynforge_robot::{Data, forward_kinematics};
 use dynforge_worker::collision::{CollisionModel, Contact};
 use dynforge_worker::trajectory::Reference;
-use dynforge_worker::trajectory::{Move, PathChecker, TrajectoryConfig, waypoints};
+use dynforge_worker::trajectory::{Move, PathChecker, waypoints};
 
 #[test]
 fn waypoints_are_deterministic_inside_limits_and_collision_free_with_their_paths() {

@@ -4,13 +4,15 @@
 use std::collections::HashMap;
 use std::time::{Duration, Instant};
 
-use dynforge_ipc::{IpcError, JobReport, JobRequest};
+use dynforge_ipc::IpcError;
+
 use dynforge_proto::job::Job;
+use dynforge_proto::job::{JobReport, JobRequest};
 use dynforge_proto::run_dir::SHARDS;
 
 use super::{GenerateError, Observer, Queue, Run};
-use crate::ledger::{Entry, Status};
 use crate::plan;
+use dynforge_proto::ledger::{Entry, Status};
 
 impl Run<'_> {
     /// Sends a job to every idle, ready worker (none once interrupted).
@@ -136,7 +138,7 @@ mod tests {
     }
 
     fn jobs(robots: u64) -> Vec<Job> {
-        plan::jobs(3, robots, TRAJECTORIES, plan::Partition::WHOLE).collect()
+        plan::jobs(3, robots, TRAJECTORIES, dynforge_proto::manifest::Partition::WHOLE).collect()
     }
 
     fn id(job: &Job) -> u64 {

@@ -20,9 +20,10 @@ use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{CACHE, LEDGER, LOGS, MANIFEST, SHARDS, remove_temporaries};
 use dynforge_proto::sim::SimConfig;
 
-use crate::ledger::{Entry, Ledger, LedgerError, Status};
-use crate::lock::{LockError, RunLock};
-use crate::plan::{self, Partition, Plan};
+use crate::plan::{self, Plan};
+use dynforge_proto::ledger::{Entry, Ledger, LedgerError, Status};
+use dynforge_proto::lock::{LockError, RunLock};
+use dynforge_proto::manifest::Partition;
 use dynforge_proto::manifest::{Manifest, ManifestError};
 use liveness::Start;
 use processes::Processes;
@@ -261,7 +262,7 @@ fn open_run_dir(
     std::fs::create_dir_all(cfg.dir.join(LOGS)).map_err(dir_err)?;
     // The ledger's lines name jobs by number, which only the manifest's settings map back to robots and trajectories.
     if !cfg.dir.join(MANIFEST).exists() {
-        let entries = crate::ledger::read(&cfg.dir.join(LEDGER))?.len();
+        let entries = dynforge_proto::ledger::read(&cfg.dir.join(LEDGER))?.len();
         if entries > 0 {
             return Err(GenerateError::NoManifest { dir: cfg.dir.display().to_string(), entries });
         }
@@ -318,7 +319,7 @@ fn finished_jobs(
     pruned: &std::collections::BTreeSet<String>,
     observer: &mut dyn Observer,
 ) -> BTreeMap<u64, Status> {
-    let latest = crate::ledger::latest(entries);
+    let latest = dynforge_proto::ledger::latest(entries);
     let failed = |e: &Entry| matches!(e.status, Status::Failed { .. });
     let retried = latest.values().filter(|e| failed(e)).count();
     if retried > 0 {
@@ -500,7 +501,7 @@ mod tests {
 
         let kept = [(0, 0), (1, 0), (1, 1), (2, 0)].map(|(r, t)| plan::job_id(&job(r, t), cfg.trajectories));
         assert_eq!(finished.keys().copied().collect::<Vec<_>>(), kept.to_vec());
-        let latest = crate::ledger::latest(&entries);
+        let latest = dynforge_proto::ledger::latest(&entries);
         for (id, status) in &finished {
             assert_eq!(status, &latest[id].status, "job {id} keeps its latest status");
         }

@@ -10,7 +10,7 @@ use std::process::{Child, Command, Stdio};
 use dynforge_proto::run_dir::{LOGS, open_for_writing};
 
 use super::GenerateError;
-use crate::lock::RunLock;
+use dynforge_proto::lock::RunLock;
 
 pub(super) struct Processes {
     command: Vec<OsString>,

@@ -7,7 +7,7 @@ use dynforge_ipc::StatusMsg;
 use dynforge_proto::job::Job;
 
 use super::Run;
-use crate::ledger::{Entry, Status};
+use dynforge_proto::ledger::{Entry, Status};
 
 /// How the run is going, for progress displays.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -51,7 +51,7 @@ impl Progress {
     /// Counts of a ledger's records (the last record of a job wins) for a run of `total` jobs.
     pub fn from_ledger(total: u64, entries: &[Entry]) -> Progress {
         let mut p = Progress { total, ..Progress::default() };
-        for e in crate::ledger::latest(entries).values() {
+        for e in dynforge_proto::ledger::latest(entries).values() {
             p.record(&e.status);
         }
         p

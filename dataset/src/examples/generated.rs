@@ -10,7 +10,8 @@
 
 use dynforge_identify::{Evidence, IdentifyError, ParameterPrior};
 use dynforge_proto::NUM_LABELS;
-use dynforge_robot::generator::{GeneratorConfig, generate};
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_robot::generator::generate;
 use dynforge_robot::parameters::{dynamic_parameters, labels_of};
 use dynforge_robot::rng::Rng;
 

@@ -3,10 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
-use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
-use dynforge_worker::job::{Job, Runner};
+use dynforge_robot::generator::{GeneratedRobot, generate};
+
+use dynforge_proto::generator::GeneratorConfig;
+use dynforge_proto::job::Job;
+use dynforge_proto::sim::SimConfig;
+use dynforge_worker::job::Runner;
 use dynforge_worker::output::Outcome;
-use dynforge_worker::simulate::SimConfig;
 
 /// Simulates `job` with the default configuration and writes its shard into `dir`; the shard's path and robot.
 pub fn write_shard(job: &Job, dir: &Path) -> (PathBuf, GeneratedRobot) {

@@ -7,7 +7,7 @@
 //! mass the posterior calls known within 5 % may be off by 8 %. The family measures it: every variant is degraded
 //! as the bag is (its effort noise, its encoder, its velocity from positions), identified from the URDF as the bag
 //! is, and each parameter's standardized errors `z = (value - truth) / std` give the factor its spread needs
-//! ([`SpreadCalibration`]).
+//! ([`FamilySpreads`]).
 
 use dynforge_recording::JointTrajectory;
 use dynforge_recording::log::Log;
@@ -113,7 +113,7 @@ impl ParameterSpread {
 
 /// Factors for the spreads of one robot's identification, measured on its family.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct SpreadCalibration {
+pub struct FamilySpreads {
     /// Variants identified, and refused (a variant whose logs the identification refused).
     pub variants: usize,
     pub refused: usize,
@@ -132,7 +132,7 @@ pub enum SpreadError {
     Mismatch(String, String),
 }
 
-impl SpreadCalibration {
+impl FamilySpreads {
     /// The factors from identified variants and the same identifications with the truth's values in place of
     /// theirs (`Identification::report_values_of` the variant): per parameter, the smallest factor that puts 68 %
     /// of the variants within one standard deviation and 95 % within two (the empirical quantiles of `|z|`).
@@ -178,7 +178,7 @@ impl SpreadCalibration {
                 }
             })
             .collect();
-        Ok(SpreadCalibration { variants, refused, parameters })
+        Ok(FamilySpreads { variants, refused, parameters })
     }
 
     /// `id`'s spreads widened by their factors (a factor under one is not applied: the family is simulated with the
@@ -225,7 +225,7 @@ mod tests {
             (0..n).map(|_| 0.5 * rng.normal()).collect(),
         ];
         let names = vec![("a.mass".to_string(), Kind::Mass), ("j.coulomb".to_string(), Kind::Friction)];
-        let c = SpreadCalibration::of_z(names, &zs, 0).unwrap();
+        let c = FamilySpreads::of_z(names, &zs, 0).unwrap();
         assert!((c.parameters[0].factor - 2.0).abs() < 0.1, "{:?}", c.parameters[0]);
         assert!((c.parameters[1].factor - 0.5).abs() < 0.025, "{:?}", c.parameters[1]);
         // Before: half of the wide errors within one; after, 68 %.
@@ -245,7 +245,7 @@ mod tests {
     #[test]
     fn too_few_variants_are_refused() {
         let zs = vec![vec![1.0; MIN_VARIANTS - 1]];
-        let err = SpreadCalibration::of_z(vec![("a.mass".into(), Kind::Mass)], &zs, 0).unwrap_err();
+        let err = FamilySpreads::of_z(vec![("a.mass".into(), Kind::Mass)], &zs, 0).unwrap_err();
         assert!(matches!(err, SpreadError::TooFew(n) if n == MIN_VARIANTS - 1), "{err}");
     }
 

@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use dynforge_recording::Reading;
 use dynforge_recording::log::{Log, log_of};
-use dynforge_recording::{Bag, recording_of};
+use dynforge_recording::recording_of;
+use dynforge_shard::Bag;
 
 use super::MIN_ROWS;
 use crate::signals::{Conditioning, VelocitySource, choose_signals};

@@ -11,7 +11,8 @@ use std::time::Duration;
 
 use std::io::Write;
 
-use dynforge_ipc::{Coordinator, JobReport, RunId, StatusMsg, Worker};
+use dynforge_ipc::{Coordinator, RunId, StatusMsg, Worker};
+use dynforge_proto::job::JobReport;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

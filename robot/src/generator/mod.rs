@@ -6,8 +6,8 @@
 
 pub mod section;
 
-pub use dynforge_proto::generator::{ConfigError, GENERATOR_VERSION, GeneratorConfig, Kinematics, Range};
-pub use section::{Beam, BeamInertia, Section, SectionKind};
+use dynforge_proto::generator::{GeneratorConfig, Range, SectionKind};
+pub use section::{Beam, BeamInertia, Section};
 
 use crate::model::{Friction, Geometry, Inertial, Joint, JointKind, Limits, Link, Model, ModelError, Pose, Shape};
 use crate::rng::{Rng, domain};

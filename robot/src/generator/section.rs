@@ -8,7 +8,7 @@
 //! diagonal in the link frame:
 //! `Ixx = Iyy = m (k_t^2 + Var(z))`, `Izz = m k_a^2`, with `k_t^2 = I_x / A` and `k_a^2 = J / A`.
 
-pub use dynforge_proto::generator::SectionKind;
+use dynforge_proto::generator::SectionKind;
 
 /// A concrete cross-section.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,7 +1,9 @@
 //! Helpers shared by the robot crate's integration tests.
 #![allow(dead_code)]
 
-use dynforge_robot::generator::{GeneratedRobot, GeneratorConfig, generate};
+use dynforge_robot::generator::{GeneratedRobot, generate};
+
+use dynforge_proto::generator::GeneratorConfig;
 use dynforge_robot::rng::Rng;
 use dynforge_robot::{Model, urdf};
 

@@ -21,8 +21,8 @@ use dynforge_recording::dataset::dataset_robot;
 
 use crate::checkpoint::Checkpoint;
 use crate::inference::{InferenceError, Predictor};
-use crate::training::EpochMetrics;
 use crate::training::session::Inputs;
+use dynforge_dataset::metrics::EpochMetrics;
 
 impl Estimator for Predictor {
     fn split(&self) -> SplitRule {

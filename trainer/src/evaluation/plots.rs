@@ -7,7 +7,7 @@ use std::sync::Once;
 use dynforge_proto::{LABELS, NUM_LABELS};
 use plotters::prelude::*;
 
-use crate::training::EpochMetrics;
+use dynforge_dataset::metrics::EpochMetrics;
 
 fn font() {
     static REGISTER: Once = Once::new();

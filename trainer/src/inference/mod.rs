@@ -20,7 +20,7 @@ use dynforge_dataset::windows::{row_width, windows};
 use dynforge_evaluation::EvaluationError;
 use dynforge_evaluation::recording::{RecordingError, physical_parameters};
 use dynforge_evaluation::spread::{
-    Calibration, Noise, SpreadCalibration, between_log_counts, estimator_spread, refine_recordings, refined_noise,
+    Calibration, Noise, ValidationSpreads, between_log_counts, estimator_spread, refine_recordings, refined_noise,
 };
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
@@ -124,7 +124,7 @@ struct Validated {
     one: [f64; NUM_LABELS],
     all: [f64; NUM_LABELS],
     per_robot: f64,
-    calibration: Option<SpreadCalibration>,
+    calibration: Option<ValidationSpreads>,
     /// Why `report.json`'s calibration was not used, when it is there and does not read.
     calibration_problem: Option<String>,
 }

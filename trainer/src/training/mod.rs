@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::checkpoint::{Checkpoint, CheckpointError, write_atomic};
 use crate::model::{Network, NetworkConfig};
 use dynforge_dataset::examples::Examples;
-pub use dynforge_dataset::metrics::EpochMetrics;
+use dynforge_dataset::metrics::EpochMetrics;
 use dynforge_dataset::metrics::write_history;
 use dynforge_dataset::metrics::{Scores, score};
 use schedule::Schedule;

@@ -499,7 +499,7 @@ impl TrainObserver for Relay<'_, '_> {
         self.observer.step(epoch, batch, batches, loss);
     }
 
-    fn epoch(&mut self, m: &super::EpochMetrics, best: bool) {
+    fn epoch(&mut self, m: &dynforge_dataset::metrics::EpochMetrics, best: bool) {
         self.flush();
         self.observer.epoch(m, best);
     }

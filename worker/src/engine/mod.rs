@@ -6,7 +6,7 @@ mod rapier;
 pub use native::NativeEngine;
 pub use rapier::{DEFAULT_SUBSTEPS as RAPIER_SUBSTEPS, RapierEngine};
 
-pub use dynforge_proto::sim::EngineKind;
+use dynforge_proto::sim::EngineKind;
 
 /// A simulated arm advanced one control period at a time under a held motor torque.
 pub trait Engine {

@@ -13,7 +13,9 @@
 use dynforge_robot::{Data, Model, aba, aba_locked, crba};
 use nalgebra::DMatrix;
 
-use super::{Engine, EngineKind};
+use super::Engine;
+
+use dynforge_proto::sim::EngineKind;
 
 /// Periods between re-estimates of the viscous stiffness.
 const STIFFNESS_REFRESH: usize = 20;

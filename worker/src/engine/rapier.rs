@@ -11,7 +11,9 @@
 use dynforge_robot::Model;
 use rapier3d_f64::prelude::*;
 
-use super::{Engine, EngineKind};
+use super::Engine;
+
+use dynforge_proto::sim::EngineKind;
 
 /// Substeps per 1 ms period: energy drift falls first-order with the substep; 8 keeps the inverse-dynamics
 /// residual of the logged data near 1e-3.
