@@ -11,6 +11,7 @@
 //!
 //! ```no_run
 //! # use dynforge_ipc::*;
+//! # use dynforge_proto::job::{Job, JobRequest};
 //! # use std::time::Duration;
 //! # fn main() -> Result<(), IpcError> {
 //! let run = RunId::for_dir(std::path::Path::new("data"))?;

@@ -3,8 +3,9 @@
 //! run millions of times (named as in the literature and Pinocchio: `rnea`, `crba`, `aba`, `regressor`).
 //!
 //! ```
+//! use dynforge_proto::generator::GeneratorConfig;
 //! use dynforge_robot::{generator, Data, rnea, aba};
-//! let robot = generator::generate(&generator::GeneratorConfig::default(), 1, 7).unwrap();
+//! let robot = generator::generate(&GeneratorConfig::default(), 1, 7).unwrap();
 //! let model = &robot.model;
 //! let mut data = Data::new(model);
 //! let (q, qd, qdd) = ([0.1; 6], [0.2; 6], [0.3; 6]);
