@@ -10,9 +10,9 @@ use crate::flags::{MAX_ROBOTS, weld, whole};
 use anyhow::{Context, Result};
 use clap::Args;
 use dynforge_coordinator::run::{GenerateConfig, GenerateError};
-use dynforge_identify::calibrate::family::{Degradation, FamilySpreads, MIN_VARIANTS};
+use dynforge_identify::calibrate::family::{Degradation, FamilySpreads, MIN_VARIANTS, MeasureObserver};
 use dynforge_identify::calibrate::{
-    Calibrated, Identification, Kind, Options, check_output, check_ran, identify_logs, identify_read, write_calibrated,
+    Calibrated, Kind, Options, check_output, check_ran, identify_logs, write_calibrated,
 };
 use dynforge_identify::signals::Conditioning;
 use dynforge_proto::content_hash;
@@ -20,12 +20,8 @@ use dynforge_proto::family::DEFAULT_SPREAD;
 use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::lock::LockError;
 use dynforge_proto::manifest::Partition;
-use dynforge_proto::run_dir::{SHARDS, write_atomic};
 use dynforge_proto::sim::{EngineKind, SimConfig};
 use dynforge_proto::spread::Spread;
-use dynforge_recording::Reading;
-use dynforge_recording::dataset::shards_by_robot;
-use dynforge_recording::log::{read_log, read_logs};
 use serde_json::json;
 
 use crate::generate::{default_workers, execute, worker_command};
@@ -157,7 +153,8 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
         },
         ..options.clone()
     };
-    let spreads = family_spreads(&dir, document, &degradation, &variants)?;
+    let bar = crate::display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
+    let spreads = FamilySpreads::measure(&dir, document, &degradation, &variants, &mut Measuring(bar))?;
     let mut calibrated = write_calibrated(id, &read, document, &options, &args.output.holdout, &out)?;
     spreads.apply(&mut calibrated.id)?;
     args.output.write_mjcf(&mut calibrated)?;
@@ -188,64 +185,26 @@ fn hex(value: &serde_json::Value) -> String {
     format!("{:016x}", content_hash(value.to_string().as_bytes()))
 }
 
-/// The spread factors of the family in `dir` at `degradation`, identified with `options` from the URDF
-/// `document`: read from the family's cache when measured before with the same settings, else measured and kept.
-fn family_spreads(
-    dir: &Path,
-    document: Option<(&str, &str)>,
-    degradation: &Degradation,
-    options: &Options,
-) -> Result<FamilySpreads> {
-    let key = json!({
-        "degradation": degradation,
-        "conditioning": format!("{:?}", options.conditioning),
-        "spread": options.spread,
-        "fixed": options.reading.fixed,
-        "urdf": document.map(|(text, _)| content_hash(text.as_bytes())),
-        "version": env!("CARGO_PKG_VERSION"),
-    });
-    let path = dir.join(format!("spreads-{}.json", hex(&key)));
-    if let Ok(text) = std::fs::read_to_string(&path)
-        && let Ok(spreads) = serde_json::from_str::<FamilySpreads>(&text)
-    {
+/// What the family's measurement shows: a bar over the variants, refusals above it.
+struct Measuring(indicatif::ProgressBar);
+
+impl MeasureObserver for Measuring {
+    fn reused(&mut self, path: &Path) {
         eprintln!("spreads: measured before at this noise ({})", path.display());
-        return Ok(spreads);
     }
-    let shards = shards_by_robot(dir).with_context(|| format!("reading {}", dir.join(SHARDS).display()))?;
-    let bar = crate::display::bar("identifying the family's variants at the log's noise {bar:30} {pos}/{len}");
-    bar.set_length(shards.len() as u64);
-    let (mut pairs, mut refused) = (Vec::new(), 0);
-    for (k, (r, mine)) in shards.iter().enumerate() {
-        bar.set_position(k as u64);
-        // The family's shards are torque logs as dynforge writes them, whatever the user's logs are.
-        let shards = Reading::welding(&options.reading.fixed);
-        let damaged = || {
-            format!(
-                "a shard of the robot's family cannot be read: delete {} and run again (the family is made anew)",
-                dir.display()
-            )
-        };
-        let mut logs = read_logs(mine, document, &shards).with_context(damaged)?;
-        for (k, log) in logs.iter_mut().enumerate() {
-            degradation.apply(log, content_hash(format!("variant {r} log {k}").as_bytes()));
-        }
-        match identify_read(logs, options) {
-            Ok((id, _)) => {
-                let mut truth: Identification = id.clone();
-                truth.report_values_of(&read_log(&mine[0], None, &shards).with_context(damaged)?.model);
-                pairs.push((id, truth));
-            }
-            Err(e) => {
-                refused += 1;
-                bar.suspend(|| eprintln!("variant {r}: refused by the identification: {e}"));
-            }
-        }
+
+    fn variant(&mut self, k: usize, of: usize) {
+        self.0.set_length(of as u64);
+        self.0.set_position(k as u64);
     }
-    bar.finish_and_clear();
-    let spreads = FamilySpreads::fit(&pairs, refused)?;
-    write_atomic(&path, serde_json::to_string_pretty(&spreads)?.as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(spreads)
+
+    fn refused(&mut self, robot: u64, why: &str) {
+        self.0.suspend(|| eprintln!("variant {robot}: refused by the identification: {why}"));
+    }
+
+    fn done(&mut self) {
+        self.0.finish_and_clear();
+    }
 }
 
 /// The calibration with what the family measured.

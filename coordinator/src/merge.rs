@@ -284,7 +284,7 @@ mod tests {
         assert_eq!(Manifest { partition: Partition::WHOLE, ..first }, manifest(1, 0, 1));
         assert!(one_run(&three).is_ok());
 
-        let refusal = |parts: &[PathBuf]| one_run(parts).err().expect("refused");
+        let refusal = |parts: &[PathBuf]| one_run(parts).expect_err("refused");
         let set = |parts: &[PathBuf]| matches!(refusal(parts), MergeError::Set(_));
         let part = |parts: &[PathBuf]| matches!(refusal(parts), MergeError::Partition { .. });
         assert!(set(&[]), "none given");

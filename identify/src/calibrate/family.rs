@@ -9,11 +9,17 @@
 //! is, and each parameter's standardized errors `z = (value - truth) / std` give the factor its spread needs
 //! ([`FamilySpreads`]).
 
-use dynforge_recording::JointTrajectory;
-use dynforge_recording::log::Log;
+use std::path::Path;
+
+use dynforge_proto::content_hash;
+use dynforge_proto::run_dir::{SHARDS, write_atomic};
+use dynforge_recording::dataset::shards_by_robot;
+use dynforge_recording::log::{Log, read_log, read_logs};
+use dynforge_recording::{JointTrajectory, ReadError, Reading};
 use dynforge_robot::rng::Rng;
 
 use super::report::{Decided, INFORMED, Identification, Kind};
+use super::{Options, identify_read};
 use crate::signals::{EffortConvention, effort_noise};
 
 /// How a bag's signals differ from a simulation's exact ones, to be done to a variant's logs: the effort's
@@ -132,7 +138,91 @@ pub enum SpreadError {
     Mismatch(String, String),
 }
 
+/// Why a family's spreads could not be measured.
+#[derive(Debug, thiserror::Error)]
+pub enum MeasureError {
+    #[error("reading {dir}: {source}")]
+    Shards { dir: String, source: std::io::Error },
+    #[error(
+        "a shard of the robot's family cannot be read: delete {dir} and run again (the family is made anew): {source}"
+    )]
+    Damaged { dir: String, source: ReadError },
+    #[error(transparent)]
+    Spread(#[from] SpreadError),
+    #[error("writing {file}: {source}")]
+    Write { file: String, source: std::io::Error },
+}
+
+/// What measuring a family's spreads says as it goes.
+pub trait MeasureObserver {
+    /// The spreads were measured before with the same settings: read from `path`.
+    fn reused(&mut self, path: &Path);
+    /// Variant `k` of `of` is being identified.
+    fn variant(&mut self, k: usize, of: usize);
+    /// Robot `robot`'s variant was refused by the identification.
+    fn refused(&mut self, robot: u64, why: &str);
+    /// Every variant has been identified.
+    fn done(&mut self);
+}
+
 impl FamilySpreads {
+    /// The spread factors of the family in `dir` at `degradation`, identified with `options` from the URDF
+    /// `document`: read from the family's cache when measured before with the same settings, else measured and kept
+    /// there.
+    pub fn measure(
+        dir: &Path,
+        document: Option<(&str, &str)>,
+        degradation: &Degradation,
+        options: &Options,
+        observer: &mut dyn MeasureObserver,
+    ) -> Result<Self, MeasureError> {
+        let key = serde_json::json!({
+            "degradation": degradation,
+            "conditioning": format!("{:?}", options.conditioning),
+            "spread": options.spread,
+            "fixed": options.reading.fixed,
+            "urdf": document.map(|(text, _)| content_hash(text.as_bytes())),
+            "version": env!("CARGO_PKG_VERSION"),
+        });
+        let path = dir.join(format!("spreads-{:016x}.json", content_hash(key.to_string().as_bytes())));
+        if let Ok(text) = std::fs::read_to_string(&path)
+            && let Ok(spreads) = serde_json::from_str::<FamilySpreads>(&text)
+        {
+            observer.reused(&path);
+            return Ok(spreads);
+        }
+        let shards = shards_by_robot(dir)
+            .map_err(|source| MeasureError::Shards { dir: dir.join(SHARDS).display().to_string(), source })?;
+        let damaged = |source| MeasureError::Damaged { dir: dir.display().to_string(), source };
+        // The family's shards are torque logs as dynforge writes them, whatever the user's logs are.
+        let reading = Reading::welding(&options.reading.fixed);
+        let (mut pairs, mut refused) = (Vec::new(), 0);
+        for (k, (r, mine)) in shards.iter().enumerate() {
+            observer.variant(k, shards.len());
+            let mut logs = read_logs(mine, document, &reading).map_err(damaged)?;
+            for (k, log) in logs.iter_mut().enumerate() {
+                degradation.apply(log, content_hash(format!("variant {r} log {k}").as_bytes()));
+            }
+            match identify_read(logs, options) {
+                Ok((id, _)) => {
+                    let mut truth: Identification = id.clone();
+                    truth.report_values_of(&read_log(&mine[0], None, &reading).map_err(damaged)?.model);
+                    pairs.push((id, truth));
+                }
+                Err(e) => {
+                    refused += 1;
+                    observer.refused(*r, &e.to_string());
+                }
+            }
+        }
+        observer.done();
+        let spreads = FamilySpreads::fit(&pairs, refused)?;
+        let text = serde_json::to_string_pretty(&spreads).expect("spreads serialize");
+        write_atomic(&path, text.as_bytes())
+            .map_err(|source| MeasureError::Write { file: path.display().to_string(), source })?;
+        Ok(spreads)
+    }
+
     /// The factors from identified variants and the same identifications with the truth's values in place of
     /// theirs (`Identification::report_values_of` the variant): per parameter, the smallest factor that puts 68 %
     /// of the variants within one standard deviation and 95 % within two (the empirical quantiles of `|z|`).
