@@ -6,7 +6,7 @@ use std::path::Path;
 use dynforge_proto::LABELS;
 use dynforge_proto::job::Job;
 use dynforge_proto::run_dir::{LEDGER, SHARDS, is_temporary};
-use dynforge_proto::shard::{META_JOB, META_LABELS};
+use dynforge_proto::shard::{JobRecord, META_JOB, META_LABELS};
 
 use crate::plan::{self, Plan};
 use dynforge_proto::ledger::{self, Entry, Status};
@@ -181,12 +181,8 @@ fn check_shard(path: &Path, job: &Job, samples: u64, hash: u64, family: bool) ->
     if family && labels.len() != 12 * joints {
         return Err(ShardProblem::FamilyLabels { labels: labels.len(), joints });
     }
-    let meta = bag.metadata.get(META_JOB).ok_or(ShardProblem::NoJob)?;
-    let field = |k: &str| meta.get(k).cloned().unwrap_or_default();
-    if field("seed") != job.seed.to_string()
-        || field("robot") != job.robot.to_string()
-        || field("trajectory") != job.trajectory.to_string()
-    {
+    let record = bag.metadata.get(META_JOB).ok_or(ShardProblem::NoJob)?;
+    if JobRecord::job_of(record) != Some(*job) {
         return Err(ShardProblem::JobMismatch);
     }
     Ok(())

@@ -12,6 +12,10 @@
 //! primitive aligned to its own size counted from the end of that header; strings are a `u32` length including a
 //! trailing NUL, the bytes, and the NUL; sequences are a `u32` count then the elements.
 
+use std::collections::BTreeMap;
+
+use crate::job::Job;
+
 pub const TOPIC_JOINT_STATES: &str = "/joint_states";
 pub const TOPIC_ROBOT_DESCRIPTION: &str = "/robot_description";
 pub const SCHEMA_JOINT_STATE: &str = "sensor_msgs/msg/JointState";
@@ -63,6 +67,61 @@ pub const META_LABELS: &str = "dynforge.labels";
 pub const META_TRAJECTORY: &str = "dynforge.trajectory";
 /// Version of this shard layout.
 pub const SHARD_VERSION: u32 = 1;
+
+/// Where a shard's robot comes from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum RobotSource {
+    /// The generator, at its version.
+    Generator { version: String },
+    /// A family of a user's URDF, by the URDF's hash.
+    Family { urdf_hash: String },
+}
+
+/// A shard's job record ([`META_JOB`]): the job, the simulation, where its robot comes from, and the versions of the
+/// shard layout and of dynforge. One definition for the worker that writes it and everyone who reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobRecord {
+    pub job: Job,
+    pub engine: String,
+    /// The simulation's step [s].
+    pub dt: f64,
+    pub source: RobotSource,
+}
+
+/// The record's key of a family's URDF hash: present exactly in a family's shards.
+const FAMILY: &str = "family";
+
+impl JobRecord {
+    /// The metadata record (values in Rust's round-trip `{}` format).
+    pub fn to_metadata(&self) -> BTreeMap<String, String> {
+        let source = match &self.source {
+            RobotSource::Generator { version } => ("generator_version", version.clone()),
+            RobotSource::Family { urdf_hash } => (FAMILY, urdf_hash.clone()),
+        };
+        BTreeMap::from([
+            ("seed".to_string(), self.job.seed.to_string()),
+            ("robot".to_string(), self.job.robot.to_string()),
+            ("trajectory".to_string(), self.job.trajectory.to_string()),
+            ("engine".to_string(), self.engine.clone()),
+            ("dt".to_string(), format!("{}", self.dt)),
+            (source.0.to_string(), source.1),
+            ("shard_version".to_string(), SHARD_VERSION.to_string()),
+            ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+        ])
+    }
+
+    /// The job a record names, if its seed, robot and trajectory are there and are numbers.
+    pub fn job_of(record: &BTreeMap<String, String>) -> Option<Job> {
+        let field = |key: &str| record.get(key).and_then(|v| v.parse::<u64>().ok());
+        let trajectory = u32::try_from(field("trajectory")?).ok()?;
+        Some(Job { seed: field("seed")?, robot: field("robot")?, trajectory })
+    }
+
+    /// Whether a record is a family's shard's (`generate --urdf`).
+    pub fn is_family(record: &BTreeMap<String, String>) -> bool {
+        record.contains_key(FAMILY)
+    }
+}
 
 /// One `sensor_msgs/msg/JointState` message.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -279,6 +338,33 @@ pub fn decode_string(buf: &[u8]) -> Result<String, CdrError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What the worker writes, the readers read back; a family's record says so and a generator's does not; a record
+    /// missing a field or holding a non-number names no job (a damaged or foreign shard), rather than a wrong one.
+    #[test]
+    fn a_job_record_reads_back_the_job_it_was_written_for() {
+        let job = Job { seed: 11, robot: 1_000_000, trajectory: 15 };
+        let generator = JobRecord {
+            job,
+            engine: "native".into(),
+            dt: 1e-3,
+            source: RobotSource::Generator { version: "3".into() },
+        };
+        let written = generator.to_metadata();
+        assert_eq!(JobRecord::job_of(&written), Some(job));
+        assert_eq!(written["dt"], "0.001");
+        assert!(!JobRecord::is_family(&written));
+        let family = JobRecord { source: RobotSource::Family { urdf_hash: "abc".into() }, ..generator };
+        assert!(JobRecord::is_family(&family.to_metadata()));
+        for (key, value) in [("seed", None), ("robot", Some("x")), ("trajectory", Some("4294967296"))] {
+            let mut damaged = written.clone();
+            match value {
+                None => drop(damaged.remove(key)),
+                Some(v) => drop(damaged.insert(key.to_string(), v.to_string())),
+            }
+            assert_eq!(JobRecord::job_of(&damaged), None, "{key}: {value:?}");
+        }
+    }
 
     #[test]
     fn joint_state_bytes_follow_the_cdr_alignment_rules() {

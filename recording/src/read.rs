@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::shard::{META_JOB, META_LABELS};
+use dynforge_proto::shard::{JobRecord, META_JOB, META_LABELS};
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_robot::{Model, urdf};
 
@@ -201,9 +201,8 @@ pub fn recording_of(path: &Path, bag: &dynforge_shard::Bag, model: Option<&Model
         }
         None => None,
     };
-    let job = |key: &str| bag.metadata.get(META_JOB).and_then(|m| m.get(key));
-    let robot = job("robot").and_then(|r| r.parse().ok());
-    let trajectory_index = job("trajectory").and_then(|t| t.parse().ok());
+    let job = bag.metadata.get(META_JOB).and_then(JobRecord::job_of);
+    let (robot, trajectory_index) = (job.map(|j| j.robot), job.map(|j| j.trajectory));
     Ok(Recording { path: path.to_path_buf(), model, trajectory, labels, robot, trajectory_index })
 }
 

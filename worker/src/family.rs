@@ -13,7 +13,7 @@ use std::path::Path;
 use dynforge_proto::family::{Family, FamilyError, Sources};
 use dynforge_proto::fourier::{Excitation, Fourier};
 use dynforge_proto::job::Job;
-use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
+use dynforge_proto::shard::{JobRecord, META_JOB, META_LABELS, META_TRAJECTORY, RobotSource};
 use dynforge_proto::sim::EngineKind;
 use dynforge_proto::spread::Spread;
 use dynforge_robot::parameters::{standard_names, standard_parameters};
@@ -26,7 +26,7 @@ use dynforge_shard::Metadata;
 use nalgebra::Vector3;
 
 use crate::collision::{Collides, Contact};
-use crate::output::{JobError, Outcome, job_metadata, write_shard};
+use crate::output::{JobError, Outcome, write_shard};
 use crate::simulate::{Arm, Discard, Simulation, simulate, unsupported};
 use crate::trajectory::Reference;
 use dynforge_proto::sim::SimConfig;
@@ -244,7 +244,8 @@ impl FamilyRunner {
     }
 
     fn metadata(&self, job: &Job, sim: &SimConfig, model: &Model) -> Metadata {
-        let job_meta = job_metadata(job, sim, ("family", self.family.urdf_hash.clone()));
+        let source = RobotSource::Family { urdf_hash: self.family.urdf_hash.clone() };
+        let job_meta = JobRecord { job: *job, engine: sim.engine.name().to_string(), dt: sim.dt, source }.to_metadata();
         let labels =
             standard_names(model).into_iter().zip(standard_parameters(model)).map(|(k, v)| (k, format!("{v}")));
         let k = job.trajectory as usize % self.excitations.len();

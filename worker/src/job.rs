@@ -7,7 +7,7 @@ use std::path::Path;
 use dynforge_proto::LABELS;
 use dynforge_proto::generator::{GENERATOR_VERSION, GeneratorConfig};
 use dynforge_proto::job::Job;
-use dynforge_proto::shard::{META_JOB, META_LABELS, META_TRAJECTORY};
+use dynforge_proto::shard::{JobRecord, META_JOB, META_LABELS, META_TRAJECTORY, RobotSource};
 use dynforge_robot::generator::{GeneratedRobot, generate};
 use dynforge_robot::parameters::labels_of;
 use dynforge_shard::Metadata;
@@ -16,7 +16,7 @@ use nalgebra::Vector3;
 
 use crate::collision::CollisionModel;
 use crate::family::FamilyRunner;
-use crate::output::{JobError, Outcome, job_metadata, write_shard};
+use crate::output::{JobError, Outcome, write_shard};
 use crate::simulate::{Arm, Discard, Simulation, simulate};
 use crate::trajectory::{Config6, Move, PlanError, waypoints};
 use dynforge_proto::sim::SimConfig;
@@ -103,7 +103,9 @@ impl Runner {
     fn metadata(&self, job: &Job, robot: &GeneratedRobot, mv: &Move) -> Result<Metadata, JobError> {
         let y = labels_of(&robot.model)?;
         let joined = |q: &Config6| q.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(" ");
-        let job_meta = job_metadata(job, &self.sim, ("generator_version", GENERATOR_VERSION.to_string()));
+        let source = RobotSource::Generator { version: GENERATOR_VERSION.to_string() };
+        let job_meta = JobRecord { job: *job, engine: self.sim.engine.name().to_string(), dt: self.sim.dt, source };
+        let job_meta = job_meta.to_metadata();
         let label_meta = LABELS.iter().zip(y).map(|(l, v)| (l.name.to_string(), format!("{v}"))).collect();
         let traj_meta = BTreeMap::from([
             ("start".to_string(), joined(&mv.start)),

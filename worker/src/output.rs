@@ -1,15 +1,11 @@
 //! What a job leaves: its shard (the recording as joint states, its job record and labels), or its discard.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::job::Job;
-use dynforge_proto::shard::{JointState, SHARD_VERSION};
+use dynforge_proto::shard::JointState;
 use dynforge_shard::{Metadata, ShardContent, ShardError};
 
 use crate::simulate::{Discard, Simulation};
-
-use dynforge_proto::sim::SimConfig;
 
 /// What a job produced.
 #[derive(Debug, Clone, PartialEq)]
@@ -28,21 +24,6 @@ pub enum JobError {
     /// A family's variant could not be drawn (its URDF was checked before the run: this is a bug, not a discard).
     #[error("drawing the family's variant: {0}")]
     Family(String),
-}
-
-/// A shard's job record: the job, the simulation, the versions, and where its robot comes from (`source`: the
-/// generator's version, or the family's URDF hash).
-pub(crate) fn job_metadata(job: &Job, sim: &SimConfig, source: (&str, String)) -> BTreeMap<String, String> {
-    BTreeMap::from([
-        ("seed".to_string(), job.seed.to_string()),
-        ("robot".to_string(), job.robot.to_string()),
-        ("trajectory".to_string(), job.trajectory.to_string()),
-        ("engine".to_string(), sim.engine.name().to_string()),
-        ("dt".to_string(), format!("{}", sim.dt)),
-        (source.0.to_string(), source.1),
-        ("shard_version".to_string(), SHARD_VERSION.to_string()),
-        ("dynforge_version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-    ])
 }
 
 /// Writes the shard of a recording of `model` (described by `urdf`) at `path`.

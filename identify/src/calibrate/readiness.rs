@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use dynforge_proto::shard::JobRecord;
 use dynforge_recording::Reading;
 use dynforge_recording::log::{Log, log_of};
 use dynforge_recording::recording_of;
@@ -95,7 +96,7 @@ fn identify(log: Log) -> Result<String, Refusal> {
 
 fn estimate(files: &[PathBuf], bag: &Bag, model: Option<&dynforge_robot::Model>) -> Result<String, Refusal> {
     let job = bag.metadata.get(dynforge_proto::shard::META_JOB);
-    if job.is_some_and(|j| j.contains_key("family")) {
+    if job.is_some_and(JobRecord::is_family) {
         return Err(Refusal::of(
             "a shard of a robot's family (`generate --urdf`), labelled with its standard parameters: the estimators \
              learn the generator's robots; `identify` calibrates it",
