@@ -190,6 +190,7 @@ struct Measuring(indicatif::ProgressBar);
 
 impl MeasureObserver for Measuring {
     fn reused(&mut self, path: &Path) {
+        self.0.finish_and_clear();
         eprintln!("spreads: measured before at this noise ({})", path.display());
     }
 
