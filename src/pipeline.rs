@@ -1,6 +1,6 @@
 //! `dynforge pipeline`: generate a small dataset, train, evaluate: the whole system in one command.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::flags::RecipeFlags;
 use anyhow::{Context, Result, bail};
@@ -10,6 +10,8 @@ use dynforge_trainer::training::resumable;
 use dynforge_trainer::training::session::Session;
 
 use crate::display::{Bars, STOP, catch_interrupts};
+use crate::evaluate::{CHECKS, SPREAD_TRAJECTORIES, spread_robots_dir, spread_seed};
+use dynforge_evaluation::Checks;
 
 #[derive(Args)]
 pub struct PipelineArgs {
@@ -29,28 +31,41 @@ pub struct PipelineArgs {
     recipe: RecipeFlags,
 }
 
-pub fn run(args: PipelineArgs) -> Result<()> {
-    let (data, model) = (args.out.join("data"), args.out.join("model"));
-    eprintln!("== 1/3 generate {} robots x 16 trajectories into {}", args.robots, data.display());
-    // The generation runs as its own process: its coordinator owns the signals while it runs.
+/// Runs `dynforge generate` of `robots` x `trajectories` robots of `seed` into `out` with `workers` processes, as a
+/// process of its own: its coordinator owns the signals while it runs.
+fn generate(out: &Path, robots: usize, trajectories: u32, workers: usize, seed: u64) -> Result<()> {
     let exe = std::env::current_exe().context("locating the dynforge executable")?;
     let status = std::process::Command::new(exe)
         .args(["generate", "--out"])
-        .arg(&data)
-        .args(["--robots", &args.robots.to_string(), "--workers", &args.workers.to_string()])
-        .args(["--seed", &args.dataset_seed.to_string()])
+        .arg(out)
+        .args(["--robots", &robots.to_string(), "--trajectories", &trajectories.to_string()])
+        .args(["--workers", &workers.to_string(), "--seed", &seed.to_string()])
         .status()
         .context("starting the generation")?;
     if !status.success() {
-        bail!("generation failed ({status}); rerun the same command to resume it");
+        bail!("generation into {} failed ({status}); rerun the same command to resume it", out.display());
     }
+    Ok(())
+}
+
+pub fn run(args: PipelineArgs) -> Result<()> {
+    let (data, model) = (args.out.join("data"), args.out.join("model"));
+    eprintln!("== 1/3 generate {} robots x 16 trajectories into {}", args.robots, data.display());
+    generate(&data, args.robots, 16, args.workers, args.dataset_seed)?;
     eprintln!("== 2/3 train into {}", model.display());
     let recipe = args.recipe.recipe(Preset::Fast, args.recipe.model_is_transformer().then_some(12));
     catch_interrupts();
     let session =
         Session { data: &data, out: &model, resume: resumable(&model), follow: false, recipe: &recipe, stop: &STOP };
     let trained = session.run(&mut Bars::new(recipe.train.batch))?;
-    eprintln!("== 3/3 evaluate on the validation robots");
-    crate::evaluate::evaluate(&model, &data, Some(trained.inputs), crate::evaluate::CHECKS)?;
+    let fresh = spread_robots_dir(&model);
+    let checks = Checks { spread_data: Some(fresh.clone()), ..CHECKS };
+    eprintln!(
+        "== 3/3 evaluate on the validation robots, and calibrate the spreads on {} robots drawn fresh into {}",
+        checks.spread_robots,
+        fresh.display()
+    );
+    generate(&fresh, checks.spread_robots, SPREAD_TRAJECTORIES, args.workers, spread_seed(args.dataset_seed))?;
+    crate::evaluate::evaluate(&model, &data, Some(trained.inputs), checks)?;
     Ok(())
 }

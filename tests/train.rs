@@ -4,6 +4,8 @@
 mod common;
 
 use common::dynforge;
+use dynforge_evaluation::spread::{LEAST, MIN_ROBOTS, UNTOLD};
+use dynforge_proto::manifest::Manifest;
 use std::path::Path;
 
 fn stderr(o: &std::process::Output) -> String {
@@ -69,7 +71,16 @@ fn train_evaluate_and_estimate_a_small_dataset() {
         assert!(!elsewhere.exists());
     }
 
-    let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2", "--identify-robots", "2"]));
+    let out = ok(dynforge(&[
+        "evaluate",
+        run.to_str().unwrap(),
+        "--torque-recordings",
+        "2",
+        "--identify-robots",
+        "2",
+        "--spread-robots",
+        "0",
+    ]));
     for needle in [
         "Friction per joint",
         "Mass and centre of mass per link",
@@ -313,7 +324,16 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     let epochs = std::fs::read_to_string(run.join("metrics.csv")).unwrap().lines().count() - 1;
     assert_eq!(epochs, 3, "the resumed run trained its third epoch");
 
-    let out = ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "3", "--identify-robots", "2"]));
+    let out = ok(dynforge(&[
+        "evaluate",
+        run.to_str().unwrap(),
+        "--torque-recordings",
+        "3",
+        "--identify-robots",
+        "2",
+        "--spread-from",
+        "validation",
+    ]));
     assert!(out.contains("Overall") && out.contains("Per robot") && out.contains("Identification"), "{out}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["windows"]["targets"].as_array().unwrap().len(), 38);
@@ -405,19 +425,28 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     let before_noisy = with_calibration(&refined_floors, &validation_shard, false);
     assert_eq!(widened["refinement"]["calibration_robots"], 9);
     assert!(bare["noise_level"].is_null(), "a simulated log is at its noise floor: {}", bare["noise_level"]);
+    // A spread is never over the family's nor under a millionth of it; a label whose evidence leaves 0.4 of the
+    // family's spread or more gets the family's.
+    let bounded = |s: f64, family: f64| s.min(family).max(LEAST * family);
+    let estimator_spread = |evidence: f64, family: f64, scaled: f64| match evidence >= UNTOLD * family {
+        true => family,
+        false => scaled.max(LEAST * family),
+    };
     for (k, l) in dynforge_proto::LABELS.iter().enumerate() {
         let (before, after) = (&bare["parameters"][l.name], &widened["parameters"][l.name]);
         let evidence = before["evidence_spread"].as_f64().unwrap();
         let estimator = before["estimator_spread"].as_f64().unwrap();
-        assert_eq!(estimator, (0.5 * evidence).hypot(estimator_floors[k]), "{}: {before}", l.name);
+        let family = before["family_spread"].as_f64().unwrap();
+        let scaled = (0.5 * evidence).hypot(estimator_floors[k]);
+        assert_eq!(estimator, estimator_spread(evidence, family, scaled), "{}: {before}", l.name);
         assert_eq!(before["value"], after["value"], "{}: the refinement's floor changes no value", l.name);
         let posterior = before["refined_posterior"].as_f64().unwrap();
         assert_eq!(after["refined_posterior"].as_f64().unwrap(), posterior, "{}", l.name);
         for (v, floor) in [(before, 0.0), (after, refined_floors[k])] {
-            assert_eq!(v["spread"].as_f64().unwrap(), posterior.hypot(floor), "{}: {v}", l.name);
+            assert_eq!(v["spread"].as_f64().unwrap(), bounded(posterior.hypot(floor), family), "{}: {v}", l.name);
         }
         let old = &before_noisy["parameters"][l.name];
-        let want = posterior.hypot(refined_floors[k]).max(estimator);
+        let want = bounded(posterior.hypot(refined_floors[k]).max(estimator), family);
         assert_eq!(old["spread"].as_f64().unwrap(), want, "{}: {old}", l.name);
     }
     // The same log with effort noise of 1 % of each joint's torque RMS, as a bag: its posterior is its measured
@@ -434,9 +463,11 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     for l in dynforge_proto::LABELS.iter() {
         let v = &noisy["parameters"][l.name];
         let estimator = v["estimator_spread"].as_f64().unwrap();
-        assert_eq!(estimator, (10.0 * v["evidence_spread"].as_f64().unwrap()).hypot(1.0), "{}: {v}", l.name);
+        let (evidence, family) = (v["evidence_spread"].as_f64().unwrap(), v["family_spread"].as_f64().unwrap());
+        let scaled = (10.0 * evidence).hypot(1.0);
+        assert_eq!(estimator, estimator_spread(evidence, family, scaled), "{}: {v}", l.name);
         let refined = (10.0 * v["refined_posterior"].as_f64().unwrap()).hypot(1.0);
-        assert_eq!(v["spread"].as_f64().unwrap(), refined.max(estimator), "{}: {v}", l.name);
+        assert_eq!(v["spread"].as_f64().unwrap(), bounded(refined.max(estimator), family), "{}: {v}", l.name);
     }
     // A calibration that does not read is said, and the spreads are the validation RMSE as without one.
     let mut broken = report.clone();
@@ -449,6 +480,28 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     let fallback: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(fallback["refinement"]["calibration_robots"].is_null(), "{}", fallback["refinement"]);
     std::fs::write(run.join("report.json"), serde_json::to_vec(&report).unwrap()).unwrap();
+
+    // Robots drawn fresh from the training data's generator calibrate the spreads, however few robots the split
+    // holds out (here 2): another seed of the same generator, generated into the checkpoint's directory.
+    let flags = ["--torque-recordings", "0", "--identify-robots", "0", "--spread-robots", "36"];
+    ok(dynforge(&[&["evaluate", run.to_str().unwrap()][..], &flags, &["--spread-trajectories", "1"]].concat()));
+    let fresh = run.join("spread-robots");
+    let (trained_on, drawn) = (Manifest::load(&data).unwrap().unwrap(), Manifest::load(&fresh).unwrap().unwrap());
+    assert!(drawn.seed != trained_on.seed && drawn.generator == trained_on.generator && drawn.trajectories == 1);
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    let calibration = &report["spread_calibration"];
+    let robots = calibration["robots"].as_u64().unwrap() as usize;
+    assert!(calibration["fresh"] == true && (MIN_ROBOTS..=36).contains(&robots), "{calibration}");
+    assert_eq!(calibration["counts"][0]["logs"], 1);
+    // None of them is a training robot.
+    let labels = |dir: &Path| -> Vec<[f64; 38]> {
+        let by_robot = dynforge_recording::dataset::shards_by_robot(dir).unwrap();
+        by_robot.values().map(|p| dynforge_recording::read(&p[0], None).unwrap().labels.unwrap()).collect()
+    };
+    let training = labels(&data);
+    assert!(labels(&fresh).iter().all(|l| !training.contains(l)));
+    let out = ok(dynforge(&["estimate", "--checkpoint", run.to_str().unwrap(), validation_shard.to_str().unwrap()]));
+    assert!(out.contains(&format!("spreads calibrated on {robots} robots drawn fresh from the generator")), "{out}");
 
     // A robot of another family is refused with the way out: the same joint names, one joint placed 5 cm off.
     let rec = dynforge_recording::read(&validation_shard, None).unwrap();
@@ -542,7 +595,8 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
         let ck: serde_json::Value =
             serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
         assert_eq!(ck["held_out"], by.name());
-        ok(dynforge(&["evaluate", run.to_str().unwrap(), "--torque-recordings", "2", "--identify-robots", "1"]));
+        let flags = ["--torque-recordings", "2", "--identify-robots", "1", "--spread-robots", "0"];
+        ok(dynforge(&[&["evaluate", run.to_str().unwrap()][..], &flags].concat()));
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
         let markdown = std::fs::read_to_string(run.join("report.md")).unwrap();

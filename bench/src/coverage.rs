@@ -42,7 +42,7 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
         .enumerate()
         .map(|(k, l)| {
             format!(
-                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
+                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
                 recs.len(),
                 l.name,
                 truth[k],
@@ -52,6 +52,7 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
                 r.std[k],
                 e.family[k],
                 e.posterior.map_or(f64::NAN, |p| p[k]),
+                e.plug_in.map_or(f64::NAN, |p| p[k]),
                 noise
             )
         })
@@ -73,7 +74,8 @@ fn group(kind: LabelKind) -> &'static str {
     }
 }
 
-/// Rows of the table: per group, the fraction within 1 and 2 spreads and the median |z|.
+/// Rows of the table: per group, the fraction within 1 and 2 spreads, the median and largest |z|, and how many lie
+/// beyond 4 spreads.
 fn table(name: &str, per_robot: &[[f64; NUM_LABELS]]) {
     let mut groups: BTreeMap<&str, Vec<f64>> = BTreeMap::new();
     for z in per_robot {
@@ -86,11 +88,13 @@ fn table(name: &str, per_robot: &[[f64; NUM_LABELS]]) {
         v.sort_by(f64::total_cmp);
         let within = |c: f64| 100.0 * v.iter().filter(|&&z| z < c).count() as f64 / v.len() as f64;
         println!(
-            "| {name} | {g} | {} | {:.0} % | {:.0} % | {:.2} |",
+            "| {name} | {g} | {} | {:.0} % | {:.0} % | {:.2} | {:.1} | {} |",
             v.len(),
             within(1.0),
             within(2.0),
-            v[v.len() / 2]
+            v[v.len() / 2],
+            v[v.len() - 1],
+            v.iter().filter(|&&z| z > 4.0).count()
         );
     }
 }
@@ -134,7 +138,7 @@ fn main() -> Result<()> {
     }
     if let Some(file) = &dump {
         let mut text = String::from(
-            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\tnoise\n",
+            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\tplug_in\tnoise\n",
         );
         for r in &rows {
             text.push_str(&r.0.rows);
@@ -144,8 +148,8 @@ fn main() -> Result<()> {
     }
     let logs = rows.first().map_or(0, |r| r.2);
     println!("{} robots ({failed} skipped), {logs} logs each; z = (value - truth) / spread\n", rows.len());
-    println!("| estimate | labels | n | abs(z) < 1 | abs(z) < 2 | median abs(z) |");
-    println!("|---|---|---|---|---|---|");
+    println!("| estimate | labels | n | abs(z) < 1 | abs(z) < 2 | median abs(z) | largest | beyond 4 |");
+    println!("|---|---|---|---|---|---|---|---|");
     type Row = (Zs, Zs, usize);
     let pick = |f: fn(&Row) -> [f64; NUM_LABELS]| rows.iter().map(f).collect::<Vec<_>>();
     table("estimator, 1 log", &pick(|r| r.0.estimator));

@@ -12,7 +12,7 @@ pub mod tables;
 pub mod torque;
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use dynforge_identify::{Prior, TorqueError};
 use dynforge_proto::NUM_LABELS;
@@ -191,19 +191,22 @@ pub struct Validation {
 type Labels = [f64; NUM_LABELS];
 
 /// How much of the validation split each check beyond the scores takes (0: skip the check).
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Checks {
     /// Validation shards whose torques the estimate predicts.
     pub torque_recordings: usize,
     /// Validation robots identified by physics from half their recordings.
     pub identify_robots: usize,
-    /// Validation robots refined from one log and from all theirs, to fit the refined spreads' floors.
+    /// Robots estimated and refined from 1, 2, 4, ... of their logs, to calibrate the spreads.
     pub spread_robots: usize,
+    /// Where those robots come from: every robot of this dataset (drawn fresh from the training data's generator,
+    /// so that none was trained on), else the validation robots.
+    pub spread_data: Option<PathBuf>,
 }
 
 impl Checks {
     /// The scores alone.
-    pub const NONE: Checks = Checks { torque_recordings: 0, identify_robots: 0, spread_robots: 0 };
+    pub const NONE: Checks = Checks { torque_recordings: 0, identify_robots: 0, spread_robots: 0, spread_data: None };
 }
 
 /// The report of `estimator` (its checkpoint `name` at `epoch`) from its predictions on the validation split
@@ -240,9 +243,10 @@ pub fn report(
     };
     let recordings = v.recordings.as_ref().map(|(p, t)| score(p, t, &label_std));
     let logs_per_robot = v.recordings.as_ref().map_or(0.0, |(p, _)| p.len() as f64 / v.robot_ids.len().max(1) as f64);
-    let spread_calibration = match checks.spread_robots {
-        0 => None,
-        n => spread::fit(estimator, data, n, &mut progress)?,
+    let spread_calibration = match (checks.spread_robots, &checks.spread_data) {
+        (0, _) => None,
+        (n, Some(fresh)) => spread::fit(estimator, spread::Robots::Fresh(fresh), n, &mut progress)?,
+        (n, None) => spread::fit(estimator, spread::Robots::Validation(data), n, &mut progress)?,
     };
     Ok(Report {
         checkpoint: name.to_string(),

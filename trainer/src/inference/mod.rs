@@ -20,7 +20,8 @@ use dynforge_dataset::windows::{row_width, windows};
 use dynforge_evaluation::EvaluationError;
 use dynforge_evaluation::recording::{RecordingError, physical_parameters};
 use dynforge_evaluation::spread::{
-    Calibration, Noise, ValidationSpreads, between_log_counts, estimator_spread, refine_recordings, refined_noise,
+    Calibration, LEAST, Noise, ValidationSpreads, between_log_counts, estimator_spread, refine_recordings,
+    refined_noise,
 };
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
@@ -74,6 +75,8 @@ pub struct Estimate {
     pub noise: Vec<f64>,
     /// Physics estimator: the standard deviation per label [SI] that the evidence alone implies for this robot.
     pub posterior: Option<[f64; NUM_LABELS]>,
+    /// Physics estimator: the labels [SI] at the evidence's posterior mean (with the family as prior).
+    pub plug_in: Option<[f64; NUM_LABELS]>,
 }
 
 impl Estimate {
@@ -108,9 +111,11 @@ pub struct Refinement {
     pub posterior: [f64; NUM_LABELS],
     /// Identifiable parameter combinations in the recording.
     pub identifiable: usize,
-    /// Validation robots on which the spreads were calibrated (`None`: the posterior as it comes, when `evaluate`
-    /// calibrated none).
+    /// Robots on which the spreads were calibrated (`None`: the posterior as it comes, when `evaluate` calibrated
+    /// none).
     pub calibration_robots: Option<usize>,
+    /// Whether those robots were drawn fresh from the generator (else: the validation robots).
+    pub calibration_fresh: bool,
     /// Torque NRMSE on the recording itself, of the network's estimate and of the refined labels (each as the
     /// physical robot the URDF gets).
     pub nrmse_network: f64,
@@ -298,20 +303,19 @@ impl Predictor {
         let n = per_window.len() as f64;
         let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
         let family: [f64; NUM_LABELS] = std::array::from_fn(|k| self.checkpoint.label_std[k]);
-        let (labels, posterior) = match (whole, &self.prior) {
+        let (labels, posterior, plug_in) = match (whole, &self.prior) {
             (Some(e), Some(prior)) => {
                 let post = e.posterior().map_err(|err| RecordingError {
                     file: recs.first().map_or(String::new(), |r| r.path.display().to_string()),
                     problem: err.to_string(),
                 })?;
                 // Where the delta method has no answer (a link mass near zero) the family's spread stands.
-                let (_, spread) = label_posterior(prior, &post);
+                let (plug_in, spread) = label_posterior(prior, &post);
                 let spread = std::array::from_fn(|k| if spread[k].is_finite() { spread[k] } else { family[k] });
-                (self.predict_evidence(&[e])?[0], Some(spread))
+                (self.predict_evidence(&[e])?[0], Some(spread), Some(plug_in))
             }
-            _ => (mean, None),
+            _ => (mean, None, None),
         };
-        let least: [f64; NUM_LABELS] = std::array::from_fn(|k| 1e-6 * family[k]);
         let mut estimate = Estimate {
             labels,
             spread: family,
@@ -320,12 +324,16 @@ impl Predictor {
             windows: per_window.len(),
             noise,
             posterior,
+            plug_in,
         };
         // The calibration's part for the noise the evidence assumed: at the floor (a simulated log) or at the log's.
         if let Some(v) = &self.validated {
             estimate.spread = match &v.calibration {
-                Some(c) => estimator_spread(posterior.as_ref(), estimate.assumed_noise(), &c.at(recs.len()).0, &least),
-                None => v.rmse(recs.len()),
+                Some(c) => estimator_spread(posterior.as_ref(), estimate.assumed_noise(), &c.at(recs.len()).0, &family),
+                None => {
+                    let rmse = v.rmse(recs.len());
+                    std::array::from_fn(|k| rmse[k].max(LEAST * family[k]))
+                }
             };
             estimate.spread_from_validation = true;
         }
@@ -356,10 +364,13 @@ impl Predictor {
         // calibration was measured on, and there the rule only widened (73-83 % within one instead of 71-80); it
         // stays for a calibration from before the noisy logs were measured.
         let measured_at_floor = |c: &Calibration| noise == Noise::Floor && !c.noisy.is_empty();
-        let std = match (e.posterior, &refined_calibration) {
+        let std: [f64; NUM_LABELS] = match (e.posterior, &refined_calibration) {
             (Some(_), Some(c)) if !measured_at_floor(c) => std::array::from_fn(|k| calibrated[k].max(e.spread[k])),
             _ => calibrated,
         };
+        // Never wider than the family's spread (what is known of the robot without its log), never narrower than
+        // the estimate's numbers can be trusted.
+        let std = std::array::from_fn(|k| std[k].min(e.family[k]).max(LEAST * e.family[k]));
         // Scored as the written URDF will be: projected to a physical robot.
         let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| r.ne.mean_nrmse(&pi));
         Ok(Refinement {
@@ -368,6 +379,7 @@ impl Predictor {
             posterior: r.refined.std,
             identifiable: r.least_squares.rank,
             calibration_robots: calibration.map(|c| c.robots),
+            calibration_fresh: calibration.is_some_and(|c| c.fresh),
             nrmse_network: nrmse(&e.labels)?,
             nrmse_refined: nrmse(&r.refined.labels)?,
         })

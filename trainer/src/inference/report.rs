@@ -125,6 +125,7 @@ impl EstimateReport {
                 let v = serde_json::json!({
                     "value": self.values[k], "estimator": e.labels[k], "spread": self.spread()[k],
                     "estimator_spread": e.spread[k], "evidence_spread": e.posterior.map(|p| p[k]),
+                    "family_spread": e.family[k],
                     "refined_posterior": self.refinement.as_ref().map(|r| r.posterior[k]),
                     "decided": decided, "unit": l.kind.unit()
                 });
@@ -134,6 +135,7 @@ impl EstimateReport {
         let refined = self.refinement.as_ref().map(|r| {
             serde_json::json!({
                 "identifiable": r.identifiable, "calibration_robots": r.calibration_robots,
+                "calibration_fresh": r.calibration_fresh,
                 "torque_nrmse_estimator": r.nrmse_network, "torque_nrmse_refined": r.nrmse_refined,
             })
         });
@@ -172,13 +174,15 @@ impl std::fmt::Display for EstimateReport {
         let source = if e.spread_from_validation { "the checkpoint's report.json" } else { "the training labels" };
         match (&self.refinement, &self.warning) {
             (Some(r), _) => {
+                let robots =
+                    if r.calibration_fresh { "robots drawn fresh from the generator" } else { "validation robots" };
                 let widened = match (r.calibration_robots, e.assumed_noise()) {
                     (Some(n), Noise::Floor) => {
-                        format!("; spreads calibrated on {n} validation robots, for a log at the noise floor")
+                        format!("; spreads calibrated on {n} {robots}, for a log at the noise floor")
                     }
-                    (Some(n), Noise::Measured(level)) => format!(
-                        "; spreads calibrated on {n} validation robots, at this log's noise (median NRMSE {level:.1e})"
-                    ),
+                    (Some(n), Noise::Measured(level)) => {
+                        format!("; spreads calibrated on {n} {robots}, at this log's noise (median NRMSE {level:.1e})")
+                    }
                     (None, _) => String::new(),
                 };
                 writeln!(
