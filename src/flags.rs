@@ -8,6 +8,7 @@ use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::split::HoldOut;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::sim::EngineKind;
+use dynforge_trainer::device::Accelerator;
 use dynforge_trainer::model::Preset;
 use dynforge_trainer::training::recipe::Recipe;
 
@@ -223,6 +224,10 @@ pub struct RecipeFlags {
     /// weighs a noisy log, so the network has seen what a real robot's log looks like.
     #[arg(long)]
     pub noisy: bool,
+    /// Where the steps run: cpu, or cuda / cuda:N (a GPU: needs a build with `--features cuda`). A run may resume
+    /// on another device.
+    #[arg(long, default_value = "cpu")]
+    pub device: Accelerator,
 }
 
 impl RecipeFlags {
@@ -244,6 +249,7 @@ impl RecipeFlags {
         t.patience = self.patience.unwrap_or(t.patience);
         t.micro_batches = self.micro_batches.unwrap_or(t.micro_batches);
         t.seed = self.seed;
+        t.device = self.device;
         (r.split, r.validation) = (self.split.into(), self.validation);
         r.generated_per_epoch = self.generated.unwrap_or(r.generated_per_epoch);
         r.generated_only = self.generated_only;

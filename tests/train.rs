@@ -629,3 +629,35 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
         "{validation_robots:?}"
     );
 }
+
+#[test]
+fn the_gpu_bench_runs_dry_on_the_cpu_and_a_gpu_needs_the_cuda_build() {
+    // What a task lent a GPU runs (bench/gpu.sh), at a few robots and one epoch on the CPU.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bench");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/gpu.sh");
+    let o = std::process::Command::new(&script)
+        .arg("--dry-run")
+        .arg(&out)
+        .env("DYNFORGE", env!("CARGO_BIN_EXE_dynforge"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let table = std::fs::read_to_string(out.join("gpu.md")).unwrap();
+    let row = table.lines().find(|l| l.starts_with("| cpu | 0 |")).unwrap_or_else(|| panic!("{table}"));
+    let cells: Vec<f64> = row.split('|').filter_map(|c| c.trim().parse().ok()).collect();
+    // epoch, R2, windows/s, seconds: an R2 (finite, at most 1) and a positive rate.
+    assert!(cells.len() == 4 && cells[1].is_finite() && cells[1] <= 1.0 && cells[2] > 0.0, "{row}");
+    // A GPU on a build without the cuda feature is refused before anything is written, saying how to build it.
+    #[cfg(not(feature = "cuda"))]
+    {
+        let run = dir.path().join("cuda");
+        let d = out.join("data");
+        let o = dynforge(&["train", d.to_str().unwrap(), "--out", run.to_str().unwrap(), "--device", "cuda:1"]);
+        let said = stderr(&o);
+        assert!(!o.status.success() && said.contains("device cuda:1") && said.contains("--features cuda"), "{said}");
+        assert!(!run.exists());
+        let o = dynforge(&["train", d.to_str().unwrap(), "--out", run.to_str().unwrap(), "--device", "gpu"]);
+        assert!(!o.status.success() && stderr(&o).contains("expected cpu, cuda or cuda:N"), "{}", stderr(&o));
+    }
+}

@@ -4,6 +4,7 @@
 //! a recording's parameters.
 
 pub mod checkpoint;
+pub mod device;
 pub mod evaluation;
 pub mod inference;
 pub mod model;

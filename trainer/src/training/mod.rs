@@ -24,6 +24,7 @@ use dynforge_robot::rng::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{Checkpoint, CheckpointError, write_atomic};
+use crate::device::Accelerator;
 use crate::model::{Network, NetworkConfig};
 use dynforge_dataset::examples::Examples;
 use dynforge_dataset::metrics::EpochMetrics;
@@ -51,6 +52,9 @@ pub struct TrainConfig {
     /// machine, so a seed gives the same model everywhere.
     #[serde(default = "default_micro_batches")]
     pub micro_batches: usize,
+    /// Where the steps run. Not part of the run's identity: a run may resume on another device.
+    #[serde(skip)]
+    pub device: Accelerator,
 }
 
 /// 4 parts of a 64-window batch measured fastest on 2 cores (bench/training.sh; figures in `docs/measurements.md`): smaller
@@ -71,6 +75,7 @@ impl Default for TrainConfig {
             patience: 6,
             seed: 0,
             micro_batches: default_micro_batches(),
+            device: Accelerator::Cpu,
         }
     }
 }
@@ -351,7 +356,7 @@ pub fn train<E: Examples>(
              fewer --layers or a smaller --dim)"
         )
     })?;
-    let device = Device::default().autodiff();
+    let device = cfg.device.device().map_err(|e| TrainError::Setup(e.to_string()))?.autodiff();
     device.seed(cfg.seed);
     let mut model = checkpoint.model.init(&device)?;
     let (mut optim, state, checkpoint) = start(run, checkpoint, &mut model, observer)?;
