@@ -15,7 +15,7 @@ use dynforge_identify::calibrate::{
     Calibrated, Kind, Options, check_output, check_ran, identify_logs, write_calibrated,
 };
 use dynforge_identify::signals::Conditioning;
-use dynforge_proto::content_hash;
+use dynforge_proto::content_hash_hex;
 use dynforge_proto::family::DEFAULT_SPREAD;
 use dynforge_proto::generator::GeneratorConfig;
 use dynforge_proto::lock::LockError;
@@ -112,7 +112,7 @@ pub fn run(args: CalibrateArgs) -> Result<()> {
     let degradation = Degradation::of(&read, id.effort);
 
     let key = json!({"family": family, "robots": args.robots, "version": env!("CARGO_PKG_VERSION")});
-    let dir = cache.join("families").join(hex(&key));
+    let dir = cache.join("families").join(content_hash_hex(key.to_string().as_bytes()));
     let cfg = GenerateConfig {
         dir: dir.clone(),
         seed: 0,
@@ -179,10 +179,6 @@ fn cache_dir(flag: Option<&Path>) -> Result<PathBuf> {
         .or_else(|| var("XDG_CACHE_HOME").map(|d| d.join("dynforge")))
         .or_else(|| var("HOME").map(|d| d.join(".cache/dynforge")))
         .context("no cache directory: give --cache DIR (neither DYNFORGE_CACHE, XDG_CACHE_HOME nor HOME is set)")
-}
-
-fn hex(value: &serde_json::Value) -> String {
-    format!("{:016x}", content_hash(value.to_string().as_bytes()))
 }
 
 /// What the family's measurement shows: a bar over the variants, refusals above it.

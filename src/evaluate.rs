@@ -73,15 +73,18 @@ pub fn spread_seed(seed: u64) -> u64 {
 }
 
 /// Generates (or finds, resuming) `robots` x `trajectories` robots drawn fresh from the generator that made `data`
-/// into the checkpoint `dir`'s [`spread_robots_dir`]. `None` for a robot's family, whose excitations are not in the
-/// dataset's manifest: its validation robots are used.
+/// into the checkpoint `dir`'s [`spread_robots_dir`]. `None` where `data` does not say how to draw more (a folder of
+/// shards without a manifest, or a robot's family, whose excitations are not in it): its validation robots are used.
 pub fn fresh_robots(data: &Path, dir: &Path, robots: usize, trajectories: u32) -> Result<Option<PathBuf>> {
-    let manifest = Manifest::load(data)?
-        .with_context(|| format!("{}: no manifest.toml: not a generated dataset", data.display()))?;
-    if manifest.family.is_some() {
-        eprintln!("note: {} is a robot's family: the spreads are calibrated on its validation robots", data.display());
-        return Ok(None);
-    }
+    let validation = |why: &str| {
+        eprintln!("note: {} {why}: the spreads are calibrated on its validation robots", data.display());
+        Ok(None)
+    };
+    let manifest = match Manifest::load(data)? {
+        None => return validation("has no manifest.toml to draw fresh robots from"),
+        Some(m) if m.family.is_some() => return validation("is a robot's family"),
+        Some(m) => m,
+    };
     let out = spread_robots_dir(dir);
     let cfg = GenerateConfig {
         dir: out.clone(),

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::content_hash;
+use crate::content_hash_hex;
 use crate::fourier::Excitation;
 use crate::spread::Spread;
 
@@ -37,7 +37,7 @@ pub struct ExcitationSet {
 impl ExcitationSet {
     /// The manifest of the excitations whose JSON texts are `texts` (in order).
     pub fn of(texts: &[String]) -> Self {
-        ExcitationSet { hashes: texts.iter().map(|t| hex(t.as_bytes())).collect() }
+        ExcitationSet { hashes: texts.iter().map(|t| content_hash_hex(t.as_bytes())).collect() }
     }
 }
 
@@ -86,10 +86,6 @@ fn read_text(path: &Path) -> Result<String, FamilyError> {
         .map_err(|e| FamilyError::File { file: path.display().to_string(), message: e.to_string() })
 }
 
-fn hex(bytes: &[u8]) -> String {
-    format!("{:016x}", content_hash(bytes))
-}
-
 /// A family's files: the URDF's text and the excitations' (as read, so hashes and copies are of the same bytes).
 #[derive(Debug, Clone)]
 pub struct Sources {
@@ -128,7 +124,7 @@ impl Sources {
         for (k, hash) in set.hashes.iter().enumerate() {
             let path = dir.join(excitation_file(k));
             let text = read_text(&path)?;
-            if hex(text.as_bytes()) != *hash {
+            if content_hash_hex(text.as_bytes()) != *hash {
                 return Err(FamilyError::File {
                     file: path.display().to_string(),
                     message: format!(
@@ -145,8 +141,8 @@ impl Sources {
     /// The manifest's record of these files.
     pub fn family(&self, welds: BTreeMap<String, f64>, spread: Spread) -> Family {
         Family {
-            urdf_hash: hex(self.urdf.as_bytes()),
-            excitation_hashes: self.excitations.iter().map(|e| hex(e.as_bytes())).collect(),
+            urdf_hash: content_hash_hex(self.urdf.as_bytes()),
+            excitation_hashes: self.excitations.iter().map(|e| content_hash_hex(e.as_bytes())).collect(),
             welds,
             spread,
             prior: PRIOR_REVISION,
@@ -170,7 +166,7 @@ impl Sources {
         let read = |name: &str, hash: &str| {
             let path = dir.join(name);
             let text = read_text(&path)?;
-            match hex(text.as_bytes()) == hash {
+            match content_hash_hex(text.as_bytes()) == hash {
                 true => Ok(text),
                 false => Err(FamilyError::File {
                     file: path.display().to_string(),

@@ -37,6 +37,11 @@ pub fn content_hash(bytes: &[u8]) -> u64 {
     h
 }
 
+/// [`content_hash`] as the 16 hexadecimal digits that name what it hashes (a family's files, a cache's key).
+pub fn content_hash_hex(bytes: &[u8]) -> String {
+    format!("{:016x}", content_hash(bytes))
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

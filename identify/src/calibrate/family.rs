@@ -11,8 +11,8 @@
 
 use std::path::Path;
 
-use dynforge_proto::content_hash;
 use dynforge_proto::run_dir::{SHARDS, write_atomic};
+use dynforge_proto::{content_hash, content_hash_hex};
 use dynforge_recording::dataset::shards_by_robot;
 use dynforge_recording::log::{Log, read_log, read_logs};
 use dynforge_recording::{JointTrajectory, ReadError, Reading};
@@ -184,7 +184,7 @@ impl FamilySpreads {
             "urdf": document.map(|(text, _)| content_hash(text.as_bytes())),
             "version": env!("CARGO_PKG_VERSION"),
         });
-        let path = dir.join(format!("spreads-{:016x}.json", content_hash(key.to_string().as_bytes())));
+        let path = dir.join(format!("spreads-{}.json", content_hash_hex(key.to_string().as_bytes())));
         if let Ok(text) = std::fs::read_to_string(&path)
             && let Ok(spreads) = serde_json::from_str::<FamilySpreads>(&text)
         {
