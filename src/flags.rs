@@ -8,7 +8,7 @@ use dynforge_dataset::prepare::ModelKind;
 use dynforge_dataset::split::HoldOut;
 use dynforge_dataset::window::WindowSpec;
 use dynforge_proto::sim::EngineKind;
-use dynforge_trainer::device::Accelerator;
+use dynforge_trainer::device::{Accelerator, DeviceError};
 use dynforge_trainer::model::Preset;
 use dynforge_trainer::training::recipe::Recipe;
 
@@ -235,8 +235,10 @@ impl RecipeFlags {
         self.model == Estimator::Transformer
     }
 
-    /// The recipe, with `preset` and `epochs` as the command's defaults where not given.
-    pub fn recipe(&self, preset: Preset, epochs: Option<usize>) -> Recipe {
+    /// The recipe, with `preset` and `epochs` as the command's defaults where not given; a device this build cannot
+    /// run on is refused here, before a command reads or writes anything.
+    pub fn recipe(&self, preset: Preset, epochs: Option<usize>) -> Result<Recipe, DeviceError> {
+        self.device.device()?;
         let mut r = Recipe::defaults(self.model.into());
         r.model.preset = self.preset.map_or(preset, Preset::from);
         (r.model.layers, r.model.heads, r.model.dim) = (self.layers, self.heads, self.dim);
@@ -254,7 +256,7 @@ impl RecipeFlags {
         r.generated_per_epoch = self.generated.unwrap_or(r.generated_per_epoch);
         r.generated_only = self.generated_only;
         r.noisy = self.noisy;
-        r
+        Ok(r)
     }
 }
 

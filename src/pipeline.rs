@@ -50,9 +50,7 @@ fn generate(out: &Path, robots: usize, trajectories: u32, workers: usize, seed: 
 
 pub fn run(args: PipelineArgs) -> Result<()> {
     let (data, model) = (args.out.join("data"), args.out.join("model"));
-    let recipe = args.recipe.recipe(Preset::Fast, args.recipe.model_is_transformer().then_some(12));
-    // A device this build cannot run on is refused before anything is generated.
-    recipe.train.device.device()?;
+    let recipe = args.recipe.recipe(Preset::Fast, args.recipe.model_is_transformer().then_some(12))?;
     eprintln!("== 1/3 generate {} robots x 16 trajectories into {}", args.robots, data.display());
     generate(&data, args.robots, 16, args.workers, args.dataset_seed)?;
     eprintln!("== 2/3 train into {}", model.display());

@@ -34,9 +34,7 @@ pub struct SweepArgs {
 }
 
 pub fn run(args: SweepArgs) -> Result<()> {
-    let base = args.recipe.recipe(Preset::Paper, Some(5));
-    // A device this build cannot run on is refused before anything is trained.
-    base.train.device.device()?;
+    let base = args.recipe.recipe(Preset::Paper, Some(5))?;
     let grid = match args.grid {
         GridArg::Dataset => Grid::Dataset,
         GridArg::Architecture => Grid::Architecture,

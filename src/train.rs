@@ -29,9 +29,7 @@ pub struct TrainArgs {
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {
-    let recipe = args.recipe.recipe(Preset::Paper, None);
-    // A device this build cannot run on is refused before anything is read or written.
-    recipe.train.device.device()?;
+    let recipe = args.recipe.recipe(Preset::Paper, None)?;
     catch_interrupts();
     let session = Session {
         data: &args.data,

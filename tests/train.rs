@@ -36,6 +36,11 @@ const SMALL: [&str; 16] = [
     "0.5",
 ];
 
+/// `dynforge evaluate RUN` with `flags`, which must succeed; its standard output.
+fn evaluate(run: &Path, flags: &[&str]) -> String {
+    ok(dynforge(&[&["evaluate", run.to_str().unwrap()][..], flags].concat()))
+}
+
 fn first_shard(data: &Path) -> std::path::PathBuf {
     let mut v: Vec<_> = std::fs::read_dir(data.join("shards")).unwrap().map(|e| e.unwrap().path()).collect();
     v.sort();
@@ -71,16 +76,7 @@ fn train_evaluate_and_estimate_a_small_dataset() {
         assert!(!elsewhere.exists());
     }
 
-    let out = ok(dynforge(&[
-        "evaluate",
-        run.to_str().unwrap(),
-        "--torque-recordings",
-        "2",
-        "--identify-robots",
-        "2",
-        "--spread-robots",
-        "0",
-    ]));
+    let out = evaluate(&run, &["--torque-recordings", "2", "--identify-robots", "2", "--spread-robots", "0"]);
     for needle in [
         "Friction per joint",
         "Mass and centre of mass per link",
@@ -324,16 +320,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     let epochs = std::fs::read_to_string(run.join("metrics.csv")).unwrap().lines().count() - 1;
     assert_eq!(epochs, 3, "the resumed run trained its third epoch");
 
-    let out = ok(dynforge(&[
-        "evaluate",
-        run.to_str().unwrap(),
-        "--torque-recordings",
-        "3",
-        "--identify-robots",
-        "2",
-        "--spread-from",
-        "validation",
-    ]));
+    let out = evaluate(&run, &["--torque-recordings", "3", "--identify-robots", "2", "--spread-from", "validation"]);
     assert!(out.contains("Overall") && out.contains("Per robot") && out.contains("Identification"), "{out}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["windows"]["targets"].as_array().unwrap().len(), 38);
@@ -484,7 +471,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     // Robots drawn fresh from the training data's generator calibrate the spreads, however few robots the split
     // holds out (here 2): another seed of the same generator, generated into the checkpoint's directory.
     let flags = ["--torque-recordings", "0", "--identify-robots", "0", "--spread-robots", "36"];
-    ok(dynforge(&[&["evaluate", run.to_str().unwrap()][..], &flags, &["--spread-trajectories", "1"]].concat()));
+    evaluate(&run, &[&flags[..], &["--spread-trajectories", "1"]].concat());
     let fresh = run.join("spread-robots");
     let (trained_on, drawn) = (Manifest::load(&data).unwrap().unwrap(), Manifest::load(&fresh).unwrap().unwrap());
     assert!(drawn.seed != trained_on.seed && drawn.generator == trained_on.generator && drawn.trajectories == 1);
@@ -596,7 +583,7 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
             serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
         assert_eq!(ck["held_out"], by.name());
         let flags = ["--torque-recordings", "2", "--identify-robots", "1", "--spread-robots", "0"];
-        ok(dynforge(&[&["evaluate", run.to_str().unwrap()][..], &flags].concat()));
+        evaluate(&run, &flags);
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
         let markdown = std::fs::read_to_string(run.join("report.md")).unwrap();

@@ -335,6 +335,11 @@ pub const UNTOLD: f64 = 0.4;
 /// narrower than the estimate's numbers can be trusted.
 pub const LEAST: f64 = 1e-6;
 
+/// `spread` raised to [`LEAST`] of the family's spread `family` where it is narrower.
+pub fn at_least(spread: f64, family: f64) -> f64 {
+    spread.max(LEAST * family)
+}
+
 /// The estimator's standard deviation per label [SI]: the evidence's own (`posterior`, zero when the estimator
 /// gives none; assuming `noise`) as `calibration` puts it; the family's spread (`family`) where the evidence leaves
 /// at least [`UNTOLD`] of it; never under [`LEAST`] of it.
@@ -347,7 +352,7 @@ pub fn estimator_spread(
     let part = calibration.part(noise);
     std::array::from_fn(|k| match posterior.map_or(0.0, |p| p[k]) {
         s if s >= UNTOLD * family[k] => family[k],
-        s => part.apply(k, s).max(LEAST * family[k]),
+        s => at_least(part.apply(k, s), family[k]),
     })
 }
 

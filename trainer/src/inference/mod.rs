@@ -20,7 +20,7 @@ use dynforge_dataset::windows::{row_width, windows};
 use dynforge_evaluation::EvaluationError;
 use dynforge_evaluation::recording::{RecordingError, physical_parameters};
 use dynforge_evaluation::spread::{
-    Calibration, LEAST, Noise, ValidationSpreads, between_log_counts, estimator_spread, refine_recordings,
+    Calibration, Noise, ValidationSpreads, at_least, between_log_counts, estimator_spread, refine_recordings,
     refined_noise,
 };
 
@@ -332,7 +332,7 @@ impl Predictor {
                 Some(c) => estimator_spread(posterior.as_ref(), estimate.assumed_noise(), &c.at(recs.len()).0, &family),
                 None => {
                     let rmse = v.rmse(recs.len());
-                    std::array::from_fn(|k| rmse[k].max(LEAST * family[k]))
+                    std::array::from_fn(|k| at_least(rmse[k], family[k]))
                 }
             };
             estimate.spread_from_validation = true;
@@ -370,7 +370,7 @@ impl Predictor {
         };
         // Never wider than the family's spread (what is known of the robot without its log), never narrower than
         // the estimate's numbers can be trusted.
-        let std = std::array::from_fn(|k| std[k].min(e.family[k]).max(LEAST * e.family[k]));
+        let std = std::array::from_fn(|k| at_least(std[k].min(e.family[k]), e.family[k]));
         // Scored as the written URDF will be: projected to a physical robot.
         let nrmse = |y| physical_parameters(p, &p.model, y).map(|(pi, _)| r.ne.mean_nrmse(&pi));
         Ok(Refinement {
