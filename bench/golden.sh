@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Fingerprints of what dynforge writes, to show that a refactor changed no output: run it with the binary before and
 # after the change (same OUT) and diff the two listings. It covers a generation (shards), a robot's family on designed
-# excitations (CSV, MCAP, JSON, report, shards), the physics cache and a trained model (one epoch), and, given a
-# checkout of github shamilmamedov/dynamic_calibration, a real UR10e's calibrated URDF, MJCF and JSON. Files that hold
-# times or process ids (ledgers, locks, metrics, training state) are left out. About 10 s with a release binary.
+# excitations (CSV, MCAP, JSON, report, shards), the window and physics caches and a trained model (one epoch), and,
+# given a checkout of github shamilmamedov/dynamic_calibration, a real UR10e's calibrated URDF, MJCF and JSON. Files
+# that hold times or process ids (ledgers, locks, metrics, training state) are left out. About 10 s with a release
+# binary.
 #
 # Usage: bench/golden.sh BIN OUT [UR10E_CHECKOUT] > listing.txt
 set -euo pipefail
@@ -18,6 +19,7 @@ quiet() { "$@" > "$out/log.txt" 2>&1 || { cat "$out/log.txt" >&2; exit 1; }; }
 quiet "$bin" generate --robots 6 --trajectories 2 --seed 5 --workers 2 --out "$out/gen"
 quiet "$bin" excite --urdf "$urdf" --out "$out/exc" --count 2 --evaluations 200 --duration 6
 quiet "$bin" generate --urdf "$urdf" --excitation "$out/exc" --robots 3 --seed 2 --workers 2 --out "$out/fam"
+quiet "$bin" dataset prepare "$out/gen" --model transformer
 quiet "$bin" train "$out/gen" --out "$out/run" --epochs 1 --validation 0.34 --generated 512
 if [ -n "$ur10e" ]; then
   mkdir -p "$out/ur10e"

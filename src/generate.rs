@@ -84,7 +84,8 @@ pub struct MergeArgs {
     /// The new directory to write: the run as one host would have written it (shards hard-linked where possible).
     #[arg(long)]
     out: PathBuf,
-    /// The partition directories (`generate --partition i/n`), all n of them, each complete.
+    /// The partition directories (`generate --partition i/n`), each complete: all n of them, or those j/n with
+    /// j % m == i for a divisor m of n, which make partition i/m (a nested subset: 0/8 and 4/8 are robots r % 4 == 0).
     #[arg(required = true)]
     parts: Vec<PathBuf>,
 }

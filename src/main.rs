@@ -52,7 +52,8 @@ enum Command {
     Status(generate::StatusArgs),
     /// Check every shard of a dataset against its ledger and manifest.
     Verify(generate::VerifyArgs),
-    /// Merge the partition directories of one run (`generate --partition i/n`) into the single-host directory.
+    /// Merge the partition directories of one run (`generate --partition i/n`) into the single-host directory (or
+    /// into a coarser partition of it).
     Merge(generate::MergeArgs),
     /// What a log holds (shard or ROS 2 bag, a file or a rosbag2 directory): joint states, rate, robot, labels, and
     /// which commands can take it (identify, estimate) or why not.

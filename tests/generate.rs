@@ -577,6 +577,55 @@ fn pruned_partitions_merge_into_the_caches_and_model_of_the_single_host_run() {
     assert!(c.join("model.safetensors").exists());
 }
 
+/// Nested subsets of one large run: partitions 1/4 and 3/4 hold exactly the robots of partition 1/2 (r % 2 == 1), so,
+/// pruned to their window caches, they merge into what `generate --partition 1/2` and `prepare` write, byte for byte
+/// (the caches combined block by block from the files).
+#[test]
+fn partitions_of_a_coarser_partition_merge_into_it() {
+    let ok = |o: Output| {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let arg = |p: &Path| p.to_str().unwrap().to_string();
+    let prepare = |d: &Path, prune: bool| {
+        let mut a = vec!["dataset".to_string(), "prepare".into(), arg(d), "--model".into(), "transformer".into()];
+        a.extend(["--window".into(), "32:64:16".into()]);
+        if prune {
+            a.push("--prune".into());
+        }
+        ok(dynforge(&a.iter().map(String::as_str).collect::<Vec<_>>()))
+    };
+    let root = tempfile::tempdir().unwrap();
+    let direct = root.path().join("direct");
+    ok(dynforge(&generate_args(&direct, "8", "2", &["--workers", "2", "--partition", "1/2"])));
+    prepare(&direct, false);
+    let parts: Vec<std::path::PathBuf> = [1, 3].iter().map(|i| root.path().join(format!("part{i}"))).collect();
+    for (i, p) in [1, 3].iter().zip(&parts) {
+        let part = format!("{i}/4");
+        ok(dynforge(&generate_args(p, "8", "2", &["--workers", "1", "--partition", &part])));
+        prepare(p, true);
+    }
+    let out = root.path().join("merged");
+    let said = ok(dynforge(&["merge", "--out", &arg(&out), &arg(&parts[1]), &arg(&parts[0])]));
+    assert!(said.contains("merged 2 partitions") && said.contains("1 caches combined"), "{said}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("manifest.toml")).unwrap(),
+        std::fs::read_to_string(direct.join("manifest.toml")).unwrap(),
+        "the manifest of partition 1/2"
+    );
+    let set = |d: &Path| ledger_entries(d).iter().map(|e| format!("{e:?}")).collect::<BTreeSet<_>>();
+    assert_eq!(set(&out), set(&direct), "the same ledger records");
+    let (merged, single) = (caches(&out), caches(&direct));
+    assert_eq!(merged.keys().collect::<Vec<_>>(), single.keys().collect::<Vec<_>>(), "the same cache names");
+    assert!(merged == single, "the combined windows cache differs from partition 1/2's own");
+    assert_verifies(&out);
+    // Partitions 0/4 and 1/4 are robots r % 4 in {0, 1}: no partition of the run.
+    let zero = root.path().join("part0");
+    ok(dynforge(&generate_args(&zero, "8", "2", &["--workers", "1", "--partition", "0/4"])));
+    let o = dynforge(&["merge", "--out", &arg(&root.path().join("no")), &arg(&zero), &arg(&parts[0])]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("partition(s) 2/4, 3/4 missing"), "{o:?}");
+}
+
 /// The live display on a real terminal (a pty from util-linux `script`, 80 columns): the bar line is cut to the
 /// width instead of wrapping, the worker spinners turn, and after Ctrl-C the bar stays at the jobs recorded.
 #[test]

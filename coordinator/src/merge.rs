@@ -2,9 +2,12 @@
 //! host would have written: the same manifest (partition 0/1), every partition's ledger records, and the shards,
 //! hard-linked where the filesystem allows (nothing is copied on a shared filesystem) and copied otherwise.
 //!
-//! A merge is refused unless the partitions are exactly the `n` of one run (same settings, indices `0..n` once each)
-//! and each verifies complete: every planned job recorded done or discarded, every shard present with its recorded
-//! hash or pruned. The output then needs no further check, and training reads it like any run directory.
+//! A merge is refused unless the partitions are of one run (same settings, each index once) and make either the
+//! whole run (indices `0..n`) or one coarser partition of it: partitions `j/n` with `j % m == i`, for a divisor `m` of
+//! `n`, hold exactly the robots of partition `i/m`, and merge into the directory `generate --partition i/m` would
+//! have written. That is how nested subsets of one large run are had (robots `r % 8 == 0`, then `r % 4 == 0`, ...).
+//! Each partition must verify complete: every planned job recorded done or discarded, every shard present with its
+//! recorded hash or pruned. The output then needs no further check, and training reads it like any run directory.
 //!
 //! Pruned partitions (`dataset prepare --prune`: shards deleted once cached) merge into a pruned directory: their
 //! pruned lists are joined, and the output's caches are combined from the partitions' (`dynforge_dataset::cache::
@@ -100,7 +103,7 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
             });
         }
     }
-    let (first, by_index) = one_run(parts)?;
+    let (first, by_index, covered) = one_run(parts)?;
     for dir in parts {
         check_complete(dir, &mut progress)?;
     }
@@ -115,7 +118,7 @@ pub fn merge(parts: &[PathBuf], out: &Path, mut progress: impl FnMut(usize, usiz
     }
     let mut merged = join_ledgers_and_shards(&by_index, out, &first)?;
     merged.partitions = parts.len();
-    let manifest = Manifest { partition: Partition::WHOLE, ..first };
+    let manifest = Manifest { partition: covered, ..first };
     merged.caches = caches.combine(parts, out, manifest.to_toml().as_bytes())?;
     if let Some(family) = &manifest.family {
         // A family's workers read the URDF and the excitations from the run directory: the merged run has them too.
@@ -131,9 +134,10 @@ fn io(path: &Path, source: std::io::Error) -> MergeError {
     MergeError::Io { path: path.display().to_string(), source }
 }
 
-/// The manifest of the run the partitions `parts` make (partition 0's), and the partitions by index; an error
-/// unless they are exactly the `n` partitions of one run.
-fn one_run(parts: &[PathBuf]) -> Result<(Manifest, BTreeMap<u32, &PathBuf>), MergeError> {
+/// The manifest of the run the partitions `parts` belong to (the first's), the partitions by index, and the part of
+/// the run they make; an error unless they are partitions of one run that make the whole run or one coarser
+/// partition of it.
+fn one_run(parts: &[PathBuf]) -> Result<(Manifest, BTreeMap<u32, &PathBuf>, Partition), MergeError> {
     let mut manifests = Vec::new();
     for dir in parts {
         let m = Manifest::load(dir)?.ok_or_else(|| MergeError::NoManifest(dir.display().to_string()))?;
@@ -167,11 +171,28 @@ fn one_run(parts: &[PathBuf]) -> Result<(Manifest, BTreeMap<u32, &PathBuf>), Mer
             )));
         }
     }
-    let missing: Vec<String> = (0..n).filter(|i| !by_index.contains_key(i)).map(|i| format!("{i}/{n}")).collect();
-    if !missing.is_empty() {
-        return Err(MergeError::Set(format!("partition(s) {} missing", missing.join(", "))));
+    match covered(by_index.keys().copied(), n) {
+        Some(part) => Ok((first, by_index, part)),
+        None => {
+            let missing: Vec<String> =
+                (0..n).filter(|i| !by_index.contains_key(i)).map(|i| format!("{i}/{n}")).collect();
+            Err(MergeError::Set(format!(
+                "partition(s) {} missing (or give those j/{n} with j % m == i, for a divisor m of {n}: partition i/m)",
+                missing.join(", ")
+            )))
+        }
     }
-    Ok((first, by_index))
+}
+
+/// The part of a run that its partitions `indices` (each once) of `n` make: the whole run, or partition `i/m` when
+/// they are exactly the `j` in `0..n` with `j % m == i` for a divisor `m` of `n`; `None` otherwise.
+fn covered(indices: impl Iterator<Item = u32> + Clone, n: u32) -> Option<Partition> {
+    let k = indices.clone().count() as u32;
+    let first = indices.clone().min()?;
+    let m = n.is_multiple_of(k).then(|| n / k)?;
+    let part = Partition { index: first % m, count: m };
+    let expected = (0..n).filter(|j| j % m == part.index);
+    expected.eq(indices).then_some(part)
 }
 
 /// An error unless the partition `dir` is complete and intact (and no generation runs in it).
@@ -268,7 +289,7 @@ mod tests {
     }
 
     #[test]
-    fn only_exactly_the_n_partitions_of_one_run_make_a_run() {
+    fn the_partitions_of_one_run_make_the_run_or_one_coarser_partition() {
         let tmp = tempfile::tempdir().unwrap();
         let root = tmp.path();
         let three = partitions(&root.join("three"), 3);
@@ -279,10 +300,18 @@ mod tests {
         std::fs::create_dir_all(&no_manifest).unwrap();
 
         let swapped = [two[1].clone(), two[0].clone()];
-        let (first, by_index) = one_run(&swapped).unwrap();
+        let (first, by_index, whole) = one_run(&swapped).unwrap();
         assert_eq!(by_index.keys().copied().collect::<Vec<_>>(), [0, 1], "given in any order");
         assert_eq!(Manifest { partition: Partition::WHOLE, ..first }, manifest(1, 0, 1));
-        assert!(one_run(&three).is_ok());
+        assert_eq!(whole, Partition::WHOLE);
+        assert_eq!(one_run(&three).unwrap().2, Partition::WHOLE);
+        let six = partitions(&root.join("six"), 6);
+        let pick = |js: &[usize]| js.iter().map(|&j| six[j].clone()).collect::<Vec<_>>();
+        assert_eq!(one_run(&pick(&[3, 0])).unwrap().2, Partition { index: 0, count: 3 });
+        assert_eq!(one_run(&pick(&[5, 1, 3])).unwrap().2, Partition { index: 1, count: 2 });
+        assert_eq!(one_run(&pick(&[4])).unwrap().2, Partition { index: 4, count: 6 });
+        assert!(matches!(one_run(&pick(&[0, 2])), Err(MergeError::Set(_))), "robots r % 6 in {{0, 2}}: no partition");
+        assert!(matches!(one_run(&pick(&[0, 1, 2, 3])), Err(MergeError::Set(_))), "4 does not divide 6");
 
         let refusal = |parts: &[PathBuf]| one_run(parts).expect_err("refused");
         let set = |parts: &[PathBuf]| matches!(refusal(parts), MergeError::Set(_));

@@ -29,12 +29,32 @@ pub use params::{FRICTION_PARAMS_PER_JOINT, INERTIAL_PARAMS_PER_LINK, InertialPa
 /// checked by everyone who reads the shard as data; of a ledger line, of a cache file. Cheap enough for workers to
 /// compute on every shard, and fixed forever (no dependency can change it).
 pub fn content_hash(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    ContentHasher::default().update(bytes).finish()
+}
+
+/// [`content_hash`] of bytes that arrive in pieces (a cache file of several gigabytes, streamed): the hash of the
+/// pieces' concatenation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ContentHasher(u64);
+
+impl Default for ContentHasher {
+    fn default() -> Self {
+        ContentHasher(0xcbf2_9ce4_8422_2325)
     }
-    h
+}
+
+impl ContentHasher {
+    pub fn update(&mut self, bytes: &[u8]) -> &mut Self {
+        for &b in bytes {
+            self.0 ^= b as u64;
+            self.0 = self.0.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        self
+    }
+
+    pub fn finish(&self) -> u64 {
+        self.0
+    }
 }
 
 /// [`content_hash`] as the 16 hexadecimal digits that name what it hashes (a family's files, a cache's key).
@@ -50,5 +70,12 @@ mod tests {
         assert_eq!(super::content_hash(b""), 0xcbf2_9ce4_8422_2325);
         assert_eq!(super::content_hash(b"a"), 0xaf63_dc4c_8601_ec8c);
         assert_eq!(super::content_hash(b"foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    #[test]
+    fn content_hash_in_pieces_is_that_of_the_whole() {
+        let mut h = super::ContentHasher::default();
+        h.update(b"foo").update(b"").update(b"bar");
+        assert_eq!(h.finish(), 0x8594_4171_f739_67e8);
     }
 }

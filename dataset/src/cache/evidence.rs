@@ -1,6 +1,7 @@
 //! The physics estimator's cache: the evidence of every window and every whole recording of a dataset
 //! (`crate::evidence`), with its labels and robot.
 
+use std::io::{self, Read, Write};
 use std::path::Path;
 
 use dynforge_identify::{Evidence, PAIRING_REVISION, ParameterPrior, packed_len};
@@ -9,7 +10,8 @@ use dynforge_proto::lock::RunLock;
 use dynforge_recording::{Recording, read_shard_bytes};
 
 use super::codec::{Decoder, Encoder};
-use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
+use super::partitions::PartitionsError;
+use super::{CacheError, CacheKey, Cached, Loaded, Skipped, Stored};
 use crate::evidence::{NOISE_FLOOR, recording_evidence};
 use crate::split::{HoldOut, Origin, Split, SplitRule, origins};
 use crate::window::WindowSpec;
@@ -94,13 +96,14 @@ impl EvidenceList {
         out.into_iter().map(|(r, (y, e))| (r, y, e)).collect()
     }
 
-    fn encode(&self, e: &mut Encoder) {
+    fn encode<W: Write>(&self, e: &mut Encoder<W>) {
         e.u64s([self.len() as u64]).u64s(self.robots.iter().copied()).u64s(self.recording.iter().copied());
         e.u64s(self.trajectories.iter().map(|&t| t as u64));
-        e.f64s(&self.labels.concat()).f64s(&self.h).f64s(&self.b);
+        self.labels.iter().for_each(|l| _ = e.f64s(l));
+        e.f64s(&self.h).f64s(&self.b);
     }
 
-    fn decode(d: &mut Decoder, rank: usize) -> Option<Self> {
+    fn decode<R: Read>(d: &mut Decoder<R>, rank: usize) -> Option<Self> {
         let n = d.usize()?;
         let robots = d.u64s(n)?;
         let recording = d.u64s(n)?;
@@ -252,25 +255,34 @@ impl Cached for PhysicsSet {
         Ok(())
     }
 
-    fn encode(&self) -> Vec<u8> {
-        let mut e = Encoder::new(MAGIC, (self.windows.h.len() + self.recordings.h.len()) * 8);
+    fn encode<W: Write>(&self, out: W) -> io::Result<W> {
+        let mut e = Encoder::new(out, MAGIC);
         e.u64s([self.spec.len, self.spec.stride, self.spec.ssr, self.windows.rank].map(|v| v as u64));
         self.windows.encode(&mut e);
         self.recordings.encode(&mut e);
         e.finish()
     }
 
-    fn decode(bytes: &[u8]) -> Option<Self> {
-        let mut d = Decoder::open(bytes, MAGIC)?;
+    fn decode<R: Read>(input: R, len: u64) -> Option<Self> {
+        let mut d = Decoder::open(input, len, MAGIC)?;
         let spec = WindowSpec { len: d.usize()?, stride: d.usize()?, ssr: d.usize()? };
         let rank = d.usize()?;
         let windows = EvidenceList::decode(&mut d, rank)?;
         let recordings = EvidenceList::decode(&mut d, rank)?;
-        d.done().then_some(PhysicsSet { spec, windows, recordings, hit: true })
+        d.finish()?;
+        Some(PhysicsSet { spec, windows, recordings, hit: true })
     }
 
+    /// In memory: every part decoded, then combined.
+    fn combine_into<W: Write>(parts: &[Stored], out: W) -> Result<W, PartitionsError> {
+        let sets = parts.iter().map(Stored::decode::<PhysicsSet>).collect::<Result<Vec<_>, _>>()?;
+        PhysicsSet::combine(&sets).encode(out).map_err(PartitionsError::Write)
+    }
+}
+
+impl PhysicsSet {
     /// Recordings and windows in merged order, each window still pointing at its recording.
-    fn combine(parts: &[PhysicsSet]) -> Result<PhysicsSet, CombineError> {
+    fn combine(parts: &[PhysicsSet]) -> PhysicsSet {
         let (spec, rank) = parts.first().map_or((WindowSpec::default(), 0), |p| (p.spec, p.windows.rank));
         let mut out = PhysicsSet::new(spec, rank);
         let mut moved: Vec<Vec<u64>> = parts.iter().map(|p| vec![0; p.recordings.len()]).collect();
@@ -287,6 +299,6 @@ impl Cached for PhysicsSet {
                 out.windows.push_from(list, i, moved[p][list.recording[i] as usize]);
             }
         }
-        Ok(out)
+        out
     }
 }

@@ -19,6 +19,8 @@ pub mod partitions;
 pub mod windows;
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::fs::File;
+use std::io::{self, BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -29,6 +31,7 @@ use dynforge_recording::ReadError;
 use dynforge_recording::dataset::{check_recorded, list_shards, recorded_shards};
 
 use codec::{Decoder, Encoder};
+use partitions::PartitionsError;
 
 /// Why a cache could not be had.
 #[derive(Debug, thiserror::Error)]
@@ -93,11 +96,14 @@ pub trait Cached: Sized {
     /// One shard's contribution, from the file's `bytes` (read and checked by the caller).
     fn read_shard(path: &Path, bytes: &[u8], settings: &Self::Settings) -> Result<Self::Shard, Skipped>;
     fn append(&mut self, path: &Path, shard: Self::Shard) -> Result<Self::Added, Skipped>;
-    fn encode(&self) -> Vec<u8>;
-    /// `None` unless `bytes` is an intact cache of this kind; the result says it came from a file.
-    fn decode(bytes: &[u8]) -> Option<Self>;
-    /// The caches of a run's partitions as the merged directory's ([`partitions`]).
-    fn combine(parts: &[Self]) -> Result<Self, CombineError>;
+    /// The kind's encoding (magic, content, checksum) written to `out`.
+    fn encode<W: Write>(&self, out: W) -> io::Result<W>;
+    /// `None` unless the `len` bytes of `input` are an intact cache of this kind; the result says it came from a
+    /// file.
+    fn decode<R: Read>(input: R, len: u64) -> Option<Self>;
+    /// The caches of a run's partitions, stored in `parts`, encoded to `out` as the merged directory's
+    /// ([`partitions`]).
+    fn combine_into<W: Write>(parts: &[Stored], out: W) -> Result<W, PartitionsError>;
 }
 
 /// The shards a cache holds, by file name, with the content hash each had when it was read (the ledger's record).
@@ -191,7 +197,7 @@ pub fn load_or_build<C: Cached>(
     };
     let list = dir.join(PRUNED);
     let pruned = read_pruned(dir).map_err(io(&list))?;
-    if let Some((cache, held)) = std::fs::read(&path).ok().and_then(|b| decode_file::<C>(&b)) {
+    if let Some((cache, held)) = read_file::<C>(&path) {
         // A file from before caches recorded their shards is read only where nothing else is left.
         if held.is_some() || !pruned.is_empty() {
             return Ok(Loaded { cache, hit: true, held, skipped: Vec::new(), unwritten: None });
@@ -224,15 +230,21 @@ pub fn load_or_build<C: Cached>(
         skipped.push(Skipped::new(&shards.join(name), problem));
     }
     let unwritten = match skipped.len() {
-        0 => write_cache(dir, &path, &encode_file(&cache, &held), lock)?,
+        0 => write_cache(dir, &path, |f| encode_file(&cache, &held, f), lock)?,
         n => Some(format!("not cached: {n} shard(s) skipped")),
     };
     Ok(Loaded { cache, hit: false, held: Some(held), skipped, unwritten })
 }
 
-/// Writes the cache file `bytes` to `path` in the run directory `dir` holding its lock (`lock`, else taken here:
-/// `Some(why)` instead of writing when another command holds it). Temporary files of killed cache writers go first.
-fn write_cache(dir: &Path, path: &Path, bytes: &[u8], lock: Option<&RunLock>) -> Result<Option<String>, CacheError> {
+/// Writes the cache file `path` (its bytes written by `fill`) in the run directory `dir` holding its lock (`lock`,
+/// else taken here: `Some(why)` instead of writing when another command holds it). Temporary files of killed cache
+/// writers go first.
+fn write_cache(
+    dir: &Path,
+    path: &Path,
+    fill: impl FnOnce(File) -> io::Result<File>,
+    lock: Option<&RunLock>,
+) -> Result<Option<String>, CacheError> {
     let _taken = match lock {
         Some(_) => None,
         None => match RunLock::acquire(dir, Duration::ZERO, "cache write (train or evaluate)") {
@@ -244,9 +256,14 @@ fn write_cache(dir: &Path, path: &Path, bytes: &[u8], lock: Option<&RunLock>) ->
     let io = |source| CacheError::Io { path: cache_dir.display().to_string(), source };
     std::fs::create_dir_all(&cache_dir).map_err(io)?;
     remove_temporaries(&cache_dir).map_err(io)?;
-    dynforge_proto::run_dir::write_atomic(path, bytes)
-        .map_err(|source| CacheError::Io { path: path.display().to_string(), source })?;
+    write_streamed(path, fill).map_err(|source| CacheError::Io { path: path.display().to_string(), source })?;
     Ok(None)
+}
+
+/// Writes `path` by the temporary-file rule, its bytes written by `fill` (never all in memory at once).
+pub(crate) fn write_streamed(path: &Path, fill: impl FnOnce(File) -> io::Result<File>) -> io::Result<()> {
+    let write = |tmp: &Path| fill(dynforge_proto::run_dir::create_temporary(tmp)?)?.sync_all();
+    dynforge_proto::run_dir::replace_atomically(path, write, |_, e| e)
 }
 
 /// A cache file: [`FILE_MAGIC`], the length of the checksummed list of the shards it holds, the list, then the kind's
@@ -254,34 +271,86 @@ fn write_cache(dir: &Path, path: &Path, bytes: &[u8], lock: Option<&RunLock>) ->
 const FILE_MAGIC: &[u8; 8] = b"DFCACHE2";
 const HELD_MAGIC: &[u8; 8] = b"DFHELD01";
 
-pub(crate) fn encode_file<C: Cached>(cache: &C, held: &Held) -> Vec<u8> {
-    let mut list = Encoder::new(HELD_MAGIC, held.len() * 48);
+/// A cache file, written to `out`: the list of the shards `held`, then `cache`'s own encoding.
+pub(crate) fn encode_file<C: Cached, W: Write>(cache: &C, held: &Held, out: W) -> io::Result<W> {
+    cache.encode(held_prefix(held, out)?)
+}
+
+/// What comes before a kind's encoding in a cache file that holds the shards `held`.
+fn held_prefix<W: Write>(held: &Held, mut out: W) -> io::Result<W> {
+    let mut list = Encoder::new(Vec::with_capacity(held.len() * 48), HELD_MAGIC);
     list.u64s([held.len() as u64]);
     for (name, hash) in held {
         list.bytes(name.as_bytes()).u64s([*hash]);
     }
-    let list = list.finish();
-    let mut out = FILE_MAGIC.to_vec();
-    out.extend((list.len() as u64).to_le_bytes());
-    out.extend(list);
-    out.extend(cache.encode());
-    out
+    let list = list.into_bytes();
+    out.write_all(FILE_MAGIC)?;
+    out.write_all(&(list.len() as u64).to_le_bytes())?;
+    out.write_all(&list)?;
+    Ok(out)
 }
 
 /// A cache file's content and held shards (`None` for the format before caches recorded them: the kind's encoding
 /// alone); `None` unless intact.
-pub(crate) fn decode_file<C: Cached>(bytes: &[u8]) -> Option<(C, Option<Held>)> {
-    let Some(rest) = bytes.strip_prefix(FILE_MAGIC) else { return C::decode(bytes).map(|c| (c, None)) };
-    let (len, rest) = rest.split_first_chunk::<8>()?;
-    let (list, inner) = rest.split_at_checked(usize::try_from(u64::from_le_bytes(*len)).ok()?)?;
-    let mut d = Decoder::open(list, HELD_MAGIC)?;
-    let mut held = Held::new();
-    for _ in 0..d.usize()? {
-        let name = String::from_utf8(d.bytes()?.to_vec()).ok()?;
-        held.insert(name, d.u64()?);
+pub(crate) fn read_file<C: Cached>(path: &Path) -> Option<(C, Option<Held>)> {
+    let stored = Stored::open(path)?;
+    let cache = C::decode(stored.reader().ok()?, stored.len)?;
+    Some((cache, stored.held))
+}
+
+/// Where a cache file keeps its kind's encoding, and the shards it lists.
+pub struct Stored {
+    pub path: PathBuf,
+    /// Where the kind's encoding starts in the file, and its length.
+    offset: u64,
+    len: u64,
+    /// `None` for a file from before caches listed their shards.
+    pub held: Option<Held>,
+}
+
+impl Stored {
+    /// The layout of the cache file `path`; `None` if it cannot be read or its list of shards is not intact.
+    pub fn open(path: &Path) -> Option<Stored> {
+        let file = File::open(path).ok()?;
+        let size = file.metadata().ok()?.len();
+        let mut input = BufReader::new(file);
+        let mut magic = [0; 8];
+        input.read_exact(&mut magic).ok()?;
+        let path = path.to_path_buf();
+        if magic != *FILE_MAGIC {
+            return Some(Stored { path, offset: 0, len: size, held: None });
+        }
+        let mut len = [0; 8];
+        input.read_exact(&mut len).ok()?;
+        let list = u64::from_le_bytes(len);
+        let mut d = Decoder::open((&mut input).take(list), list, HELD_MAGIC)?;
+        let mut held = Held::new();
+        for _ in 0..d.usize()? {
+            let name = String::from_utf8(d.bytes()?).ok()?;
+            held.insert(name, d.u64()?);
+        }
+        d.finish()?;
+        let offset = list.checked_add(16)?;
+        Some(Stored { path, offset, len: size.checked_sub(offset)?, held: Some(held) })
     }
-    d.done().then_some(())?;
-    Some((C::decode(inner)?, Some(held)))
+
+    /// The kind's encoding, `len` bytes from the start of it.
+    pub(crate) fn reader(&self) -> io::Result<io::Take<BufReader<File>>> {
+        self.reader_at(0)
+    }
+
+    /// The kind's encoding from `at` bytes into it, to its end.
+    pub(crate) fn reader_at(&self, at: u64) -> io::Result<io::Take<BufReader<File>>> {
+        let mut input = BufReader::with_capacity(1 << 20, File::open(&self.path)?);
+        input.seek(SeekFrom::Start(self.offset + at))?;
+        Ok(input.take(self.len.saturating_sub(at)))
+    }
+
+    /// This part's cache, decoded whole; an error names the file.
+    pub(crate) fn decode<C: Cached>(&self) -> Result<C, PartitionsError> {
+        let damaged = || PartitionsError::Damaged(self.path.display().to_string(), C::KIND);
+        C::decode(self.reader().map_err(|_| damaged())?, self.len).ok_or_else(damaged)
+    }
 }
 
 /// Names a cache file of a run directory: `KIND-PPPPPPPPPPPPPPPP-DDDDDDDDDDDDDDDD.bin`, where P hashes the

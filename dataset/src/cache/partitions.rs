@@ -7,13 +7,14 @@
 //! merged directory would build from its shards.
 
 use std::collections::BTreeSet;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_atomic};
+use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, create_temporary, read_pruned, replace_atomically};
 
 use super::evidence::PhysicsSet;
 use super::windows::CachedWindows;
-use super::{CacheKey, Cached, Held, dataset_hash, dataset_hash_of, decode_file, encode_file};
+use super::{CacheKey, Cached, Held, Stored, dataset_hash, dataset_hash_of, held_prefix};
 
 const KINDS: [&str; 2] = [CachedWindows::KIND, PhysicsSet::KIND];
 
@@ -35,6 +36,8 @@ pub enum PartitionsError {
     Damaged(String, &'static str),
     #[error("combining the {kind} caches: {source}")]
     Combine { kind: &'static str, source: super::CombineError },
+    #[error("writing the combined cache: {0}")]
+    Write(std::io::Error),
 }
 
 fn io(path: &Path) -> impl Fn(std::io::Error) -> PartitionsError {
@@ -107,35 +110,41 @@ impl Plan {
             let mut files = Vec::new();
             for dir in parts {
                 let path = key.path(dir)?;
-                files.push((std::fs::read(&path).map_err(io(&path))?, path));
+                let stored = Stored::open(&path).ok_or_else(|| PartitionsError::Damaged(path_text(&path), key.kind))?;
+                files.push(stored);
             }
-            let bytes = match key.kind {
-                PhysicsSet::KIND => combine_files::<PhysicsSet>(&files)?,
-                _ => combine_files::<CachedWindows>(&files)?,
-            };
             let name = key.file_name(merged_dataset);
             let path = out.join(CACHE).join(&name);
-            write_atomic(&path, &bytes).map_err(io(&path))?;
+            let fill = |tmp: &Path| {
+                let file = create_temporary(tmp).map_err(io(tmp))?;
+                let file = match key.kind {
+                    PhysicsSet::KIND => combine_files::<PhysicsSet, _>(&files, file)?,
+                    _ => combine_files::<CachedWindows, _>(&files, file)?,
+                };
+                file.sync_all().map_err(io(tmp))
+            };
+            replace_atomically(&path, fill, |p, e| io(p)(e))?;
             written.push(name);
         }
         Ok(written)
     }
 }
 
-/// The cache files `files` (bytes, path) of kind `C` combined, encoded, holding the shards all of them hold (a
+fn path_text(path: &Path) -> String {
+    path.display().to_string()
+}
+
+/// The cache files `files` of kind `C` combined and written to `out`, holding the shards all of them hold (a
 /// partition's file from before caches recorded their shards makes one without the list); an error names the first
 /// that is not an intact cache of the kind.
-fn combine_files<C: Cached>(files: &[(Vec<u8>, PathBuf)]) -> Result<Vec<u8>, PartitionsError> {
-    let (parts, held): (Vec<C>, Vec<Option<Held>>) = files
-        .iter()
-        .map(|(b, p)| decode_file::<C>(b).ok_or_else(|| PartitionsError::Damaged(p.display().to_string(), C::KIND)))
-        .collect::<Result<Vec<_>, _>>()?
-        .into_iter()
-        .unzip();
-    let combined = C::combine(&parts).map_err(|source| PartitionsError::Combine { kind: C::KIND, source })?;
-    let held: Option<Vec<Held>> = held.into_iter().collect();
-    Ok(match held {
-        Some(lists) => encode_file(&combined, &lists.into_iter().flatten().collect()),
-        None => combined.encode(),
-    })
+fn combine_files<C: Cached, W: Write>(files: &[Stored], out: W) -> Result<W, PartitionsError> {
+    let held: Option<Vec<&Held>> = files.iter().map(|f| f.held.as_ref()).collect();
+    let out = match held {
+        Some(lists) => {
+            let joined: Held = lists.into_iter().flat_map(|h| h.iter().map(|(k, v)| (k.clone(), *v))).collect();
+            held_prefix(&joined, out).map_err(PartitionsError::Write)?
+        }
+        None => out,
+    };
+    C::combine_into(files, out)
 }

@@ -1,5 +1,6 @@
 //! The transformer's cache: every window of a dataset, preprocessed (`crate::windows`), with its labels and robot.
 
+use std::io::{self, Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
@@ -8,7 +9,8 @@ use dynforge_proto::lock::RunLock;
 use dynforge_recording::{GRID_DT, read_shard_bytes};
 
 use super::codec::{Decoder, Encoder};
-use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped};
+use super::partitions::PartitionsError;
+use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped, Stored};
 use crate::features::JacobianFeatures;
 use crate::split::{Origin, origins};
 use crate::window::WindowSpec;
@@ -156,47 +158,112 @@ impl Cached for CachedWindows {
         Ok((w.robot, start..start + w.count))
     }
 
-    fn encode(&self) -> Vec<u8> {
-        let mut e = Encoder::new(MAGIC, self.data.len() * 4 + self.labels.len() * (NUM_LABELS * 8 + 8));
+    fn encode<W: Write>(&self, out: W) -> io::Result<W> {
+        let mut e = Encoder::new(out, MAGIC);
         e.u64s([self.spec.len, self.spec.stride, self.spec.ssr, self.width, self.count()].map(|v| v as u64));
-        e.f32s(&self.data).f64s(&self.labels.concat()).u64s(self.robots.iter().copied());
-        e.u64s(self.trajectories.iter().map(|&t| t as u64));
+        e.f32s(&self.data);
+        self.labels.iter().for_each(|l| _ = e.f64s(l));
+        e.u64s(self.robots.iter().copied()).u64s(self.trajectories.iter().map(|&t| t as u64));
         e.finish()
     }
 
-    fn decode(bytes: &[u8]) -> Option<Self> {
-        let mut d = Decoder::open(bytes, MAGIC)?;
+    fn decode<R: Read>(input: R, len: u64) -> Option<Self> {
+        let mut d = Decoder::open(input, len, MAGIC)?;
+        let head = Head::read(&mut d)?;
+        let data = d.f32s(head.values()?)?;
+        let Index { labels, robots, trajectories } = Index::read(&mut d, head.count)?;
+        d.finish()?;
+        Some(CachedWindows { spec: head.spec, width: head.width, data, labels, robots, trajectories, hit: true })
+    }
+
+    /// Streamed: each part is read twice (its index and checksum, then its windows' values block by block in merged
+    /// order, copied as they are), so the merge of the paper's 8,192 robots holds only the parts' labels in memory.
+    fn combine_into<W: Write>(parts: &[Stored], out: W) -> Result<W, PartitionsError> {
+        let damaged = |s: &Stored| PartitionsError::Damaged(s.path.display().to_string(), Self::KIND);
+        let mut heads = Vec::new();
+        let mut indices = Vec::new();
+        for s in parts {
+            let read = |input| {
+                let mut d = Decoder::open(input, s.len, MAGIC)?;
+                let head = Head::read(&mut d)?;
+                d.pass(head.values()?.checked_mul(4)?, |_| {})?;
+                let index = Index::read(&mut d, head.count)?;
+                d.finish().map(|_| (head, index))
+            };
+            let (head, index) = s.reader().ok().and_then(read).ok_or_else(|| damaged(s))?;
+            if let Some(first) = heads.first().filter(|f: &&Head| f.width != head.width) {
+                let problem = format!("windows of {} and {} values per step", first.width, head.width);
+                return Err(PartitionsError::Combine { kind: Self::KIND, source: CombineError(problem) });
+            }
+            heads.push(head);
+            indices.push(index);
+        }
+        let spec = heads.first().map_or(WindowSpec::default(), |h| h.spec);
+        let width = heads.first().map_or(0, |h| h.width);
+        let count: usize = heads.iter().map(|h| h.count).sum();
+        let mut e = Encoder::new(out, MAGIC);
+        e.u64s([spec.len, spec.stride, spec.ssr, width, count].map(|v| v as u64));
+        let order = super::merged_order(&indices.iter().map(|i| &i.robots[..]).collect::<Vec<_>>());
+        let window_bytes = (spec.len * width * 4) as u64;
+        let mut buffer = vec![0; 1 << 16];
+        for (p, items) in &order {
+            let s = &parts[*p];
+            let mut input = s.reader_at(Head::BYTES + items.start as u64 * window_bytes).map_err(|_| damaged(s))?;
+            let mut rest = items.len() as u64 * window_bytes;
+            while rest > 0 {
+                let k = rest.min(buffer.len() as u64) as usize;
+                input.read_exact(&mut buffer[..k]).map_err(|_| damaged(s))?;
+                e.raw(&buffer[..k]);
+                rest -= k as u64;
+            }
+        }
+        for (p, items) in &order {
+            indices[*p].labels[items.clone()].iter().for_each(|l| _ = e.f64s(l));
+        }
+        for (p, items) in &order {
+            e.u64s(indices[*p].robots[items.clone()].iter().copied());
+        }
+        for (p, items) in &order {
+            e.u64s(indices[*p].trajectories[items.clone()].iter().map(|&t| t as u64));
+        }
+        e.finish().map_err(PartitionsError::Write)
+    }
+}
+
+/// What precedes a window cache's values.
+struct Head {
+    spec: WindowSpec,
+    width: usize,
+    count: usize,
+}
+
+impl Head {
+    /// The magic and five numbers.
+    const BYTES: u64 = 8 + 5 * 8;
+
+    fn read<R: Read>(d: &mut Decoder<R>) -> Option<Head> {
         let (len, stride, ssr, width, count) = (d.usize()?, d.usize()?, d.usize()?, d.usize()?, d.usize()?);
-        let data = d.f32s(count.checked_mul(len)?.checked_mul(width)?)?;
+        Some(Head { spec: WindowSpec { len, stride, ssr }, width, count })
+    }
+
+    /// The values of all windows.
+    fn values(&self) -> Option<usize> {
+        self.count.checked_mul(self.spec.len)?.checked_mul(self.width)
+    }
+}
+
+/// What follows a window cache's values: per window, its labels, robot and trajectory.
+struct Index {
+    labels: Vec<[f64; NUM_LABELS]>,
+    robots: Vec<u64>,
+    trajectories: Vec<u32>,
+}
+
+impl Index {
+    fn read<R: Read>(d: &mut Decoder<R>, count: usize) -> Option<Index> {
         let labels = d.label_rows(count)?;
         let robots = d.u64s(count)?;
         let trajectories = d.u64s(count)?.into_iter().map(u32::try_from).collect::<Result<_, _>>().ok()?;
-        d.done().then_some(CachedWindows {
-            spec: WindowSpec { len, stride, ssr },
-            width,
-            data,
-            labels,
-            robots,
-            trajectories,
-            hit: true,
-        })
-    }
-
-    fn combine(parts: &[CachedWindows]) -> Result<CachedWindows, CombineError> {
-        let mut out = CachedWindows::new(parts.first().map_or(WindowSpec::default(), |p| p.spec));
-        let robots: Vec<&[u64]> = parts.iter().map(|p| &p.robots[..]).collect();
-        for (p, items) in super::merged_order(&robots) {
-            let part = &parts[p];
-            if out.count() > 0 && part.width != out.width {
-                return Err(CombineError(format!("windows of {} and {} values per step", part.width, out.width)));
-            }
-            out.width = part.width;
-            let step = out.spec.len * part.width;
-            out.data.extend_from_slice(&part.data[items.start * step..items.end * step]);
-            out.labels.extend_from_slice(&part.labels[items.clone()]);
-            out.robots.extend_from_slice(&part.robots[items.clone()]);
-            out.trajectories.extend_from_slice(&part.trajectories[items]);
-        }
-        Ok(out)
+        Some(Index { labels, robots, trajectories })
     }
 }
