@@ -648,3 +648,44 @@ fn the_gpu_bench_runs_dry_on_the_cpu_and_a_gpu_needs_the_cuda_build() {
         assert!(!o.status.success() && stderr(&o).contains("expected cpu, cuda or cuda:N"), "{}", stderr(&o));
     }
 }
+
+#[test]
+fn the_scale_bench_runs_dry_on_nested_subsets_of_one_run_and_resumes() {
+    // bench/scale.sh at 32 robots: partitions j/8, merged into robots r % 4 == 0, r % 2 == 0 and all; one epoch each.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scale");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/scale.sh");
+    let run = || {
+        let o = std::process::Command::new(&script)
+            .arg("--dry-run")
+            .arg(&out)
+            .env("DYNFORGE", env!("CARGO_BIN_EXE_dynforge"))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        o
+    };
+    run();
+    let table = std::fs::read_to_string(out.join("scale.md")).unwrap();
+    let rows: Vec<Vec<f64>> = table
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| robots"))
+        .map(|l| l.split('|').filter_map(|c| c.trim().parse().ok()).collect())
+        .collect();
+    assert_eq!(rows.iter().map(|r| r[0]).collect::<Vec<_>>(), [4.0, 8.0, 16.0, 32.0], "{table}");
+    for r in &rows {
+        // robots, training windows, validation robots, epochs run, best epoch, R2 per window and per robot, CPU
+        // and wall hours.
+        assert!(r.len() == 9 && r[1] > 0.0 && r[2] >= 2.0 && r[3] == 1.0 && r[4] == 1.0, "{table}");
+        assert!(r[5].is_finite() && r[5] <= 1.0 && r[6].is_finite() && r[6] <= 1.0 && r[7] > 0.0, "{table}");
+    }
+    // The merged subsets are the coarser partitions of the one run, each robot once.
+    for (name, partition) in [("n8", "0/4"), ("n16", "0/2"), ("n32", "0/1")] {
+        let m = Manifest::load(&out.join(name)).unwrap().unwrap();
+        assert_eq!(m.partition.to_string(), partition, "{name}");
+    }
+    // A rerun finds everything done: no new epoch, the same table.
+    let again = run();
+    assert!(!stderr(&again).contains("training"), "{}", stderr(&again));
+    assert_eq!(std::fs::read_to_string(out.join("scale.md")).unwrap(), table);
+}

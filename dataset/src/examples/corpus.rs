@@ -77,8 +77,11 @@ impl Examples for Corpus {
         (x, y)
     }
 
-    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>) {
-        let x = self.validation.iter().flat_map(|&i| self.standardizer.inputs(&self.windows, i)).collect();
-        (x, self.validation.iter().map(|&i| self.windows.labels[i]).collect())
+    fn validation_inputs(&self, ids: std::ops::Range<usize>) -> Vec<f32> {
+        self.validation[ids].iter().flat_map(|&i| self.standardizer.inputs(&self.windows, i)).collect()
+    }
+
+    fn validation_labels(&self) -> Vec<[f64; NUM_LABELS]> {
+        self.validation.iter().map(|&i| self.windows.labels[i]).collect()
     }
 }

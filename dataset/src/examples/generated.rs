@@ -253,7 +253,12 @@ impl Examples for PhysicsExamples {
         (x, y)
     }
 
-    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>) {
-        (self.validation_x.clone(), self.validation_y.clone())
+    fn validation_inputs(&self, ids: std::ops::Range<usize>) -> Vec<f32> {
+        let per = self.shape()[0] * self.shape()[1];
+        self.validation_x[ids.start * per..ids.end * per].to_vec()
+    }
+
+    fn validation_labels(&self) -> Vec<[f64; NUM_LABELS]> {
+        self.validation_y.clone()
     }
 }

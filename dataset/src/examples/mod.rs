@@ -27,8 +27,11 @@ pub trait Examples: Sync {
     fn validation_len(&self) -> usize;
     /// Standardised inputs and targets of training examples `ids` (`0..train_len()`), concatenated.
     fn train_batch(&self, ids: &[usize]) -> (Vec<f32>, Vec<f32>);
-    /// Standardised inputs of every validation example, concatenated, and their labels [SI].
-    fn validation(&self) -> (Vec<f32>, Vec<[f64; NUM_LABELS]>);
+    /// Standardised inputs of validation examples `ids` (`0..validation_len()`), concatenated: asked for a chunk at
+    /// a time, so that the validation set (a fifth of 16 GB of windows at the paper's scale) is never copied whole.
+    fn validation_inputs(&self, ids: std::ops::Range<usize>) -> Vec<f32>;
+    /// The labels [SI] of every validation example.
+    fn validation_labels(&self) -> Vec<[f64; NUM_LABELS]>;
 }
 
 /// What the physics estimator trains on besides its prior, as a checkpoint records it (a resumed run says when it

@@ -118,8 +118,8 @@ fn validate_windows(predictor: &Predictor, w: CachedWindows, rule: &SplitRule) -
     let ids: Vec<usize> = (0..w.count()).filter(|&i| rule.side(origins[i]) == Split::Validation).collect();
     let standardizer = predictor.checkpoint.standardizer();
     let corpus = Corpus { windows: w, train: Vec::new(), validation: ids, standardizer };
-    let (x, truth) = corpus.validation();
-    let predicted = predictor.predict_standardised(&x, truth.len());
+    let truth = corpus.validation_labels();
+    let predicted = predictor.predict_standardised_with(truth.len(), |r| corpus.validation_inputs(r));
     let window_robots: Vec<u64> = corpus.validation.iter().map(|&i| corpus.windows.robots[i]).collect();
     let (robot_ids, robot_predicted, robot_truth) = per_robot_mean(&window_robots, &predicted, &truth);
     Validation {

@@ -27,7 +27,7 @@ use dynforge_evaluation::spread::{
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::evaluation::plots::PlotError;
 use crate::model::Network;
-use crate::training::predict;
+use crate::training::predict_with;
 pub use report::{EstimateReport, estimate_to_urdf};
 
 #[derive(Debug, thiserror::Error)]
@@ -215,8 +215,18 @@ impl Predictor {
 
     /// Predictions [SI] of standardised inputs (`count` examples of the model's input shape).
     pub(crate) fn predict_standardised(&self, x: &[f32], count: usize) -> Vec<[f64; NUM_LABELS]> {
+        let per = self.checkpoint.model.input_shape().iter().product::<usize>();
+        self.predict_standardised_with(count, |r| x[r.start * per..r.end * per].to_vec())
+    }
+
+    /// [`Self::predict_standardised`] of inputs made a batch at a time by `inputs(range)`.
+    pub(crate) fn predict_standardised_with(
+        &self,
+        count: usize,
+        inputs: impl Fn(std::ops::Range<usize>) -> Vec<f32> + Sync,
+    ) -> Vec<[f64; NUM_LABELS]> {
         let s = self.checkpoint.standardizer();
-        predict(&self.model, x, count, self.checkpoint.model.input_shape(), &self.device)
+        predict_with(&self.model, count, self.checkpoint.model.input_shape(), &self.device, inputs)
             .iter()
             .map(|t| s.labels(t))
             .collect()

@@ -127,15 +127,24 @@ pub enum TrainError {
 
 /// Standardised predictions of `model` for standardised inputs `x` (`count` examples of `shape`), in batches.
 pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], device: &Device) -> Vec<[f32; NUM_LABELS]> {
+    let per = shape[0] * shape[1];
+    predict_with(model, count, shape, device, |r| x[r.start * per..r.end * per].to_vec())
+}
+
+/// [`predict`] of `count` examples whose inputs `inputs(range)` makes a batch at a time, so that they are never all
+/// in memory at once.
+pub fn predict_with(
+    model: &Network,
+    count: usize,
+    shape: [usize; 2],
+    device: &Device,
+    inputs: impl Fn(std::ops::Range<usize>) -> Vec<f32> + Sync,
+) -> Vec<[f32; NUM_LABELS]> {
     const CHUNK: usize = 256;
     let [len, width] = shape;
-    let per = len * width;
     let chunk = |start: usize| {
         let n = (count - start).min(CHUNK);
-        let t = Tensor::<3>::from_data(
-            TensorData::new(x[start * per..(start + n) * per].to_vec(), [n, len, width]),
-            device,
-        );
+        let t = Tensor::<3>::from_data(TensorData::new(inputs(start..start + n), [n, len, width]), device);
         let y: Vec<f32> = model.forward(t).into_data().try_to_vec::<f32>().expect("f32 predictions");
         y.chunks_exact(NUM_LABELS).map(|c| <[f32; NUM_LABELS]>::try_from(c).expect("38")).collect::<Vec<_>>()
     };
@@ -146,9 +155,9 @@ pub fn predict(model: &Network, x: &[f32], count: usize, shape: [usize; 2], devi
 
 /// Scores, SI predictions and mean squared error (standardised) of `model` on the validation examples.
 pub fn evaluate(model: &Network, examples: &dyn Examples, device: &Device) -> (Scores, Vec<[f64; NUM_LABELS]>, f64) {
-    let (x, truth) = examples.validation();
+    let truth = examples.validation_labels();
     let s = examples.standardizer();
-    let pred = predict(model, &x, truth.len(), examples.shape(), device);
+    let pred = predict_with(model, truth.len(), examples.shape(), device, |r| examples.validation_inputs(r));
     let predicted: Vec<[f64; NUM_LABELS]> = pred.iter().map(|p| s.labels(p)).collect();
     let scores = score(&predicted, &truth, &s.label_std);
     let mse = scores.rmse * scores.rmse;
