@@ -84,6 +84,18 @@ fn cache_hits_misses_and_rebuilds() {
     // A truncated file (a crash before the atomic rename cannot produce one, a disk error can) is rebuilt too.
     std::fs::write(&path, &bytes[..bytes.len() / 3]).unwrap();
     assert!(!CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
+    // A length or count that claims more than the file holds is refused before anything is allocated for it (the
+    // list of shards' length; the number of windows, after the magic and four numbers of the windows' encoding).
+    let good = std::fs::read(&path).unwrap();
+    let list = u64::from_le_bytes(good[8..16].try_into().unwrap()) as usize;
+    for (at, claim) in [(8, u64::MAX / 2), (16 + list + 8 + 4 * 8, 1 << 40), (16 + list + 8 + 4 * 8, u64::MAX / 2)] {
+        let mut bad = good.clone();
+        bad[at..at + 8].copy_from_slice(&claim.to_le_bytes());
+        std::fs::write(&path, &bad).unwrap();
+        let (w, _) = CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap();
+        assert!(!w.hit, "byte {at}: {claim}");
+        assert_eq!(CachedEq(&w), CachedEq(&built));
+    }
 }
 
 /// Equality of the cached content, ignoring whether it came from disk.

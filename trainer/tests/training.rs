@@ -330,3 +330,29 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     assert!(c.train.len() > train0 || c.validation.len() > val0);
     assert_eq!(batches.0, [train0.div_ceil(4), c.train.len().div_ceil(4)]);
 }
+
+#[test]
+fn a_run_stopped_early_goes_on_when_resumed_with_more_patience() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let cfg = TrainConfig { epochs: 2, batch: 4, lr: 2e-3, patience: 10, ..TrainConfig::default() };
+    let dir = tempfile::tempdir().unwrap();
+    let mut c = corpus(8, 3);
+    let ck = checkpoint(&c, small_model());
+    let never = AtomicBool::new(false);
+    let run = |config: &TrainConfig, c: &mut Corpus| {
+        train(c, None, ck.clone(), &Run { dir: dir.path(), config, resume: true, stop: &never }, &mut ()).unwrap()
+    };
+    train(&mut c, None, ck.clone(), &Run { dir: dir.path(), config: &cfg, resume: false, stop: &never }, &mut ())
+        .unwrap();
+    // As the state file of a run with patience 1, whose best epoch was its first, records it after its second.
+    let state = dir.path().join("train/state.json");
+    let mut s: serde_json::Value = serde_json::from_slice(&std::fs::read(&state).unwrap()).unwrap();
+    s["best_epoch"] = 0.into();
+    s["stopped_early"] = true.into();
+    std::fs::write(&state, serde_json::to_vec(&s).unwrap()).unwrap();
+    let longer = TrainConfig { epochs: 4, patience: 1, ..cfg.clone() };
+    let same = run(&longer, &mut c);
+    assert!(same.stopped_early && same.history.len() == 2, "patience 1 still stops it");
+    let patient = run(&TrainConfig { patience: 5, ..longer }, &mut c);
+    assert!(!patient.stopped_early && patient.history.len() == 4, "patience 5 lets it train to 4 epochs");
+}

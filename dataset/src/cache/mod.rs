@@ -322,7 +322,8 @@ impl Stored {
         }
         let mut len = [0; 8];
         input.read_exact(&mut len).ok()?;
-        let list = u64::from_le_bytes(len);
+        // A damaged length claims no more than the file holds.
+        let list = u64::from_le_bytes(len).min(size.saturating_sub(16));
         let mut d = Decoder::open((&mut input).take(list), list, HELD_MAGIC)?;
         let mut held = Held::new();
         for _ in 0..d.usize()? {

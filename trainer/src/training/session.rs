@@ -274,6 +274,11 @@ impl Session<'_> {
         }
         let robot = dataset_robot(self.data)?;
         let features = JacobianFeatures::new(&robot);
+        // Training holds the cache in memory: one larger than the machine is refused before it is read.
+        let file = dynforge_dataset::cache::windows::cache_path(self.data, spec, &features)?;
+        if let Ok(meta) = std::fs::metadata(&file) {
+            super::check_memory(meta.len() as u128, || format!("the window cache {}", file.display()))?;
+        }
         let loaded = CachedWindows::load(self.data, spec, &features, None, |k, n| {
             observer.preprocessing("windows", k, n);
             !self.stop.load(Ordering::Relaxed)
