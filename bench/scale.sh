@@ -101,7 +101,9 @@ done
     tail -n +2 "$run/metrics.csv" | awk -F, -v s="$size" -v t="$windows" -v v="$held" -v b="$best" \
       -v w="$(r2 '')" -v r="$(r2 ' per robot')" '
       { n++; cpu += $10; wall += $9 }
-      END { printf "| %d | %d | %d | %d | %d | %s | %s | %.3g | %.3g |\n", s, t, v, n, b + 1, w, r, cpu / 3600, wall / 3600 }'
+      END {
+        printf "| %d | %d | %d | %d | %d | %s | %s | %.3g | %.3g |\n", s, t, v, n, b + 1, w, r, cpu / 3600, wall / 3600
+      }'
   done
   echo
   echo "Per kind (mean R2 per window; per robot):"

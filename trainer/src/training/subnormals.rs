@@ -1,7 +1,7 @@
 //! Subnormal floats (below 1.2e-38 in f32) take a slow path in x86 CPUs, tens to hundreds of cycles an operation,
 //! and the transformer's training makes them: with the data unchanged, an epoch at 1,024 robots went from 222 to 356
 //! CPU s over 9 epochs, and a fresh process resuming at the tenth still took 324. The same epoch with them flushed
-//! to zero took 171 (the first epoch of a run 1.3x faster, later ones 1.9x). The transformer's training steps
+//! to zero took 171, less than the first epoch had taken without. The transformer's training steps
 //! therefore run with the CPU's flush-to-zero and denormals-are-zero modes; threads that share a step take the mode
 //! of the thread that starts it, so the result stays the same on any machine. Elsewhere (evaluation, the physics
 //! estimator, identification in f64) the default mode stays.
@@ -40,7 +40,8 @@ impl FloatMode {
         };
     }
 
-    pub(crate) fn flushes(self) -> bool {
+    #[cfg(test)]
+    fn flushes(self) -> bool {
         #[cfg(target_arch = "x86_64")]
         return self.0 & Self::FLUSH == Self::FLUSH;
         #[cfg(not(target_arch = "x86_64"))]
