@@ -617,19 +617,24 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
     );
 }
 
+/// `script --dry-run out` with this build's dynforge; its output, after asserting that it succeeded.
+fn dry_run(script: &str, out: &Path) -> std::process::Output {
+    let o = std::process::Command::new(Path::new(env!("CARGO_MANIFEST_DIR")).join(script))
+        .arg("--dry-run")
+        .arg(out)
+        .env("DYNFORGE", env!("CARGO_BIN_EXE_dynforge"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    o
+}
+
 #[test]
 fn the_gpu_bench_runs_dry_on_the_cpu_and_a_gpu_needs_the_cuda_build() {
     // What a task lent a GPU runs (bench/gpu.sh), at a few robots and one epoch on the CPU.
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bench");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/gpu.sh");
-    let o = std::process::Command::new(&script)
-        .arg("--dry-run")
-        .arg(&out)
-        .env("DYNFORGE", env!("CARGO_BIN_EXE_dynforge"))
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr(&o));
+    dry_run("bench/gpu.sh", &out);
     let table = std::fs::read_to_string(out.join("gpu.md")).unwrap();
     let row = table.lines().find(|l| l.starts_with("| cpu | 0 |")).unwrap_or_else(|| panic!("{table}"));
     let cells: Vec<f64> = row.split('|').filter_map(|c| c.trim().parse().ok()).collect();
@@ -654,17 +659,7 @@ fn the_scale_bench_runs_dry_on_nested_subsets_of_one_run_and_resumes() {
     // bench/scale.sh at 32 robots: partitions j/8, merged into robots r % 4 == 0, r % 2 == 0 and all; one epoch each.
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("scale");
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("bench/scale.sh");
-    let run = || {
-        let o = std::process::Command::new(&script)
-            .arg("--dry-run")
-            .arg(&out)
-            .env("DYNFORGE", env!("CARGO_BIN_EXE_dynforge"))
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", stderr(&o));
-        o
-    };
+    let run = || dry_run("bench/scale.sh", &out);
     run();
     let table = std::fs::read_to_string(out.join("scale.md")).unwrap();
     let rows: Vec<Vec<f64>> = table
