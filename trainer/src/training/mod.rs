@@ -8,7 +8,6 @@
 pub mod recipe;
 pub mod schedule;
 pub mod session;
-mod subnormals;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -32,7 +31,6 @@ use dynforge_dataset::metrics::EpochMetrics;
 use dynforge_dataset::metrics::write_history;
 use dynforge_dataset::metrics::{Scores, score};
 use schedule::Schedule;
-use subnormals::{FloatMode, FlushToZero};
 
 /// Optimisation settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -201,19 +199,10 @@ where
         let value = loss.clone().into_scalar::<f32>() as f64;
         (value, GradientsParams::from_grads(loss.backward(), &replica))
     };
-    // Every part computes in the floating-point mode of the thread that runs the step.
-    let mode = FloatMode::current();
     let results: Vec<(f64, GradientsParams)> = std::thread::scope(|s| {
         // `fork` gives each replica fresh autodiff leaves (same parameter ids), so every part has a graph of its own.
-        let handles: Vec<_> = (1..parts)
-            .map(|p| (p, model.clone().fork(device)))
-            .map(|(p, m)| {
-                s.spawn(move || {
-                    mode.apply();
-                    run(p, m)
-                })
-            })
-            .collect();
+        let handles: Vec<_> =
+            (1..parts).map(|p| (p, model.clone().fork(device))).map(|(p, m)| s.spawn(move || run(p, m))).collect();
         let mut out = vec![run(0, model.clone().fork(device))];
         out.extend(handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))));
         out
@@ -225,11 +214,6 @@ where
         sum.accumulate(model, grads);
     }
     (loss, sum.grads())
-}
-
-/// Whether `model`'s training steps flush subnormals to zero ([`subnormals`]): the transformer's.
-fn flushes(model: &Network) -> bool {
-    matches!(model, Network::Transformer(_))
 }
 
 /// The permutation of the training windows in `epoch`.
@@ -489,7 +473,6 @@ impl Loop<'_> {
         let order = epoch_order(cfg.seed, state.epoch, examples.train_len());
         let shape = examples.shape();
         let mut trained = 0usize;
-        let _flush = flushes(&model).then(FlushToZero::on);
         for b in state.batch_in_epoch..batches {
             if self.run.stop.load(Ordering::Relaxed) {
                 return Ok((model, None));
@@ -585,7 +568,6 @@ pub fn synthetic_throughput(
     let x = Tensor::<3>::random([batch, len, width], Distribution::Normal(0.0, 1.0), &device);
     let y = Tensor::<2>::random([batch, NUM_LABELS], Distribution::Normal(0.0, 1.0), &device);
     let mut started = Instant::now();
-    let _flush = flushes(&model).then(FlushToZero::on);
     for step in 0..warmup + steps {
         if step == warmup {
             started = Instant::now();
