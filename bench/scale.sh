@@ -10,6 +10,8 @@
 #   --dry-run   32 robots x 2 trajectories, a tiny network, one epoch: what the tests run
 #   DYNFORGE    the dynforge binary (default target/release/dynforge)
 #   DYNFORGE_SCALE_SIZES   the sizes to train, as robot counts (default: all four, 1/8 to all of ROBOTS)
+#   DYNFORGE_SCALE_TRAJECTORIES   trajectories per robot (default 16, the paper's). A job's trajectory does not depend
+#                                 on this count, so 4 gives the first 4 of each robot's 16: the same robots, fewer jobs
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 dry=0
@@ -20,7 +22,7 @@ if [ $dry = 1 ]; then
   robots=32 trajectories=2 epochs=1 patience=3
   net=(--dim 16 --layers 1 --heads 2 --patch 4 --validation 0.5)
 else
-  robots=8192 trajectories=16 epochs=12 patience=3
+  robots=8192 trajectories=${DYNFORGE_SCALE_TRAJECTORIES:-16} epochs=12 patience=3
   net=(--preset fast)
 fi
 sizes=${DYNFORGE_SCALE_SIZES:-"$((robots / 8)) $((robots / 4)) $((robots / 2)) $robots"}

@@ -145,15 +145,25 @@ pub fn create_temporary(tmp: &Path) -> std::io::Result<File> {
 /// untouched. The directory must exist.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     use std::io::Write;
-    replace_atomically(
+    write_with(
         path,
-        |tmp| {
-            let mut f = create_temporary(tmp)?;
+        |mut f| {
             f.write_all(bytes)?;
-            f.sync_all()
+            Ok(f)
         },
         |_, e| e,
     )
+}
+
+/// [`write_atomic`] of a file whose bytes `fill` writes into the temporary file it is given (streamed, never all in
+/// memory: a cache of several gigabytes); `io` turns a file-system error into `E`.
+pub fn write_with<E>(
+    path: &Path,
+    fill: impl FnOnce(File) -> Result<File, E>,
+    io: impl Fn(&Path, std::io::Error) -> E,
+) -> Result<(), E> {
+    let write = |tmp: &Path| fill(create_temporary(tmp).map_err(|e| io(tmp, e))?)?.sync_all().map_err(|e| io(tmp, e));
+    replace_atomically(path, write, &io)
 }
 
 /// The temporary-file rule for writers that produce the file themselves: `fill` creates the temporary file with

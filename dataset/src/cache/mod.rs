@@ -256,14 +256,9 @@ fn write_cache(
     let io = |source| CacheError::Io { path: cache_dir.display().to_string(), source };
     std::fs::create_dir_all(&cache_dir).map_err(io)?;
     remove_temporaries(&cache_dir).map_err(io)?;
-    write_streamed(path, fill).map_err(|source| CacheError::Io { path: path.display().to_string(), source })?;
+    dynforge_proto::run_dir::write_with(path, fill, |_, e| e)
+        .map_err(|source| CacheError::Io { path: path.display().to_string(), source })?;
     Ok(None)
-}
-
-/// Writes `path` by the temporary-file rule, its bytes written by `fill` (never all in memory at once).
-pub(crate) fn write_streamed(path: &Path, fill: impl FnOnce(File) -> io::Result<File>) -> io::Result<()> {
-    let write = |tmp: &Path| fill(dynforge_proto::run_dir::create_temporary(tmp)?)?.sync_all();
-    dynforge_proto::run_dir::replace_atomically(path, write, |_, e| e)
 }
 
 /// A cache file: [`FILE_MAGIC`], the length of the checksummed list of the shards it holds, the list, then the kind's

@@ -10,7 +10,7 @@ use std::collections::BTreeSet;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, create_temporary, read_pruned, replace_atomically};
+use dynforge_proto::run_dir::{CACHE, LEDGER, PRUNED, read_pruned, write_with};
 
 use super::evidence::PhysicsSet;
 use super::windows::CachedWindows;
@@ -110,28 +110,20 @@ impl Plan {
             let mut files = Vec::new();
             for dir in parts {
                 let path = key.path(dir)?;
-                let stored = Stored::open(&path).ok_or_else(|| PartitionsError::Damaged(path_text(&path), key.kind))?;
-                files.push(stored);
+                let damaged = || PartitionsError::Damaged(path.display().to_string(), key.kind);
+                files.push(Stored::open(&path).ok_or_else(damaged)?);
             }
             let name = key.file_name(merged_dataset);
             let path = out.join(CACHE).join(&name);
-            let fill = |tmp: &Path| {
-                let file = create_temporary(tmp).map_err(io(tmp))?;
-                let file = match key.kind {
-                    PhysicsSet::KIND => combine_files::<PhysicsSet, _>(&files, file)?,
-                    _ => combine_files::<CachedWindows, _>(&files, file)?,
-                };
-                file.sync_all().map_err(io(tmp))
+            let fill = |file| match key.kind {
+                PhysicsSet::KIND => combine_files::<PhysicsSet, _>(&files, file),
+                _ => combine_files::<CachedWindows, _>(&files, file),
             };
-            replace_atomically(&path, fill, |p, e| io(p)(e))?;
+            write_with(&path, fill, |p, e| io(p)(e))?;
             written.push(name);
         }
         Ok(written)
     }
-}
-
-fn path_text(path: &Path) -> String {
-    path.display().to_string()
 }
 
 /// The cache files `files` of kind `C` combined and written to `out`, holding the shards all of them hold (a

@@ -96,6 +96,13 @@ struct TrainState {
     stopped_early: bool,
 }
 
+impl TrainState {
+    /// Whether more than `patience` epochs have passed without a better validation loss.
+    fn stops_early(&self, patience: usize) -> bool {
+        self.epoch.saturating_sub(self.best_epoch) > patience
+    }
+}
+
 /// What a finished (or interrupted) run reports.
 #[derive(Debug, Clone)]
 pub struct TrainSummary {
@@ -438,7 +445,7 @@ fn start(
     }
     observer.message(&format!("resuming {} at epoch {}{}", run.dir.display(), s.epoch, changes(was, now)));
     // Early stopping is judged under the patience of now: more of it lets a stopped run go on.
-    let stopped_early = s.epoch.saturating_sub(s.best_epoch) > cfg.patience;
+    let stopped_early = s.stops_early(cfg.patience);
     let state = TrainState { config: cfg.clone(), stopped_early, ..s };
     Ok((optim, state, Checkpoint::read(run.dir)?))
 }
@@ -542,7 +549,7 @@ impl Loop<'_> {
         state.epoch += 1;
         state.batch_in_epoch = 0;
         state.train_loss_sum = 0.0;
-        state.stopped_early = state.epoch - state.best_epoch > self.run.config.patience;
+        state.stopped_early = state.stops_early(self.run.config.patience);
         write_history(self.run.dir, &state.history).map_err(|e| io(&e.0, e.1))
     }
 }
