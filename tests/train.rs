@@ -377,7 +377,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
     }
 
     // The calibration `evaluate` measures on validation robots (too few here: none). With one, the estimator's
-    // spread is the evidence's own for this robot, scaled (a simulated log: its posterior assumed the noise floor)
+    // spread is the evidence's deviation from the estimate (a simulated log: of the posterior its residual supports), scaled
     // with the floor in quadrature; the refined spread the refinement's posterior likewise; each at the
     // calibration for this many logs (one: the one-log calibrations). The refined spread of a noisy log, or with a
     // calibration written before noisy validation logs were measured (no noisy part), is never under the
@@ -424,7 +424,9 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         let evidence = before["evidence_spread"].as_f64().unwrap();
         let estimator = before["estimator_spread"].as_f64().unwrap();
         let family = before["family_spread"].as_f64().unwrap();
-        let scaled = (0.5 * evidence).hypot(estimator_floors[k]);
+        let deviation = before["posterior_deviation"].as_f64().unwrap();
+        assert!(deviation > 0.0 && deviation.is_finite(), "{}: {before}", l.name);
+        let scaled = (0.5 * deviation).hypot(estimator_floors[k]);
         assert_eq!(estimator, estimator_spread(evidence, family, scaled), "{}: {before}", l.name);
         assert_eq!(before["value"], after["value"], "{}: the refinement's floor changes no value", l.name);
         let posterior = before["refined_posterior"].as_f64().unwrap();
@@ -437,8 +439,8 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         assert_eq!(old["spread"].as_f64().unwrap(), want, "{}: {old}", l.name);
     }
     // The same log with effort noise of 1 % of each joint's torque RMS, as a bag: its posterior is its measured
-    // noise's, and takes the noisy part (ten times the posterior, with that part's floor), refined likewise and never
-    // under the estimator's.
+    // noise's, and takes the noisy part (ten times its deviation, with that part's floor), refined likewise (ten times
+    // the posterior) and never under the estimator's.
     let mut rec = dynforge_recording::read(&validation_shard, None).unwrap();
     let mut rng = dynforge_robot::rng::Rng::stream(7, &[]);
     dynforge_evaluation::spread::add_effort_noise(&mut rec, 0.01, &mut rng);
@@ -451,7 +453,7 @@ fn the_physics_estimator_trains_evaluates_and_estimates_end_to_end() {
         let v = &noisy["parameters"][l.name];
         let estimator = v["estimator_spread"].as_f64().unwrap();
         let (evidence, family) = (v["evidence_spread"].as_f64().unwrap(), v["family_spread"].as_f64().unwrap());
-        let scaled = (10.0 * evidence).hypot(1.0);
+        let scaled = (10.0 * v["posterior_deviation"].as_f64().unwrap()).hypot(1.0);
         assert_eq!(estimator, estimator_spread(evidence, family, scaled), "{}: {v}", l.name);
         let refined = (10.0 * v["refined_posterior"].as_f64().unwrap()).hypot(1.0);
         assert_eq!(v["spread"].as_f64().unwrap(), bounded(refined.max(estimator), family), "{}: {v}", l.name);

@@ -8,7 +8,8 @@
 //!
 //! `--dump` writes every label of every robot under both protocols: truth, the estimator's value and spread, the
 //! refined value and standard deviation, the family's spread, the evidence's own spread (NaN for the transformer),
-//! the logs' measured noise (the median over moving joints of each one's torque NRMSE, below the floor too).
+//! the logs' measured noise (the median over moving joints of each one's torque NRMSE, below the floor too), their
+//! batch scatter (`BatchScatter::ratio`) and the evidence's deviation from the estimate (what the calibration scales).
 //! `--noise` adds white noise of that fraction of each joint's torque RMS to every recorded torque (a real robot's
 //! effort sensing; the logs' noise is then measured above the floor, and the calibration's part for that noise
 //! applies). Streams differ from `evaluate`'s validation noise, and so do the robots.
@@ -42,7 +43,7 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
         .enumerate()
         .map(|(k, l)| {
             format!(
-                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
+                "{}\t{robot}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\t{}\n",
                 recs.len(),
                 l.name,
                 truth[k],
@@ -53,7 +54,9 @@ fn zs(predictor: &Predictor, recs: &[&Recording], truth: &[f64; NUM_LABELS], rob
                 e.family[k],
                 e.posterior.map_or(f64::NAN, |p| p[k]),
                 e.plug_in.map_or(f64::NAN, |p| p[k]),
-                noise
+                noise,
+                e.scatter.unwrap_or(f64::NAN),
+                e.deviation.map_or(f64::NAN, |p| p[k])
             )
         })
         .collect();
@@ -138,7 +141,7 @@ fn main() -> Result<()> {
     }
     if let Some(file) = &dump {
         let mut text = String::from(
-            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\tplug_in\tnoise\n",
+            "logs\trobot\tlabel\ttruth\testimator\testimator_spread\trefined\trefined_std\tfamily\tevidence\tplug_in\tnoise\tscatter\tdeviation\n",
         );
         for r in &rows {
             text.push_str(&r.0.rows);

@@ -37,6 +37,18 @@ pub struct Estimated {
     pub posterior: Option<Labels>,
     /// The noise that posterior assumed: the floor on every joint (a simulated log), or the log's measured noise.
     pub noise: spread::Noise,
+    /// How far each label [SI] of the posterior lies from the estimate (the spread whose intervals about it hold the
+    /// posterior's central 68 and 95 %); at the noise floor, of the posterior the logs' own residual supports.
+    /// `None`: as `posterior`.
+    pub deviation: Option<Labels>,
+}
+
+impl Estimated {
+    /// The evidence's spread of label `k` about the estimate, as the calibration reads it: its deviation where the
+    /// estimator gives one, else its posterior's standard deviation (0 without either).
+    pub fn deviation(&self, k: usize) -> f64 {
+        self.deviation.or(self.posterior).map_or(0.0, |p| p[k])
+    }
 }
 
 /// An estimator's own failure, as it reports it.
@@ -56,7 +68,12 @@ pub trait Estimator: Sync {
     /// [`Estimator::estimate`] with the standard deviation per label [SI] its evidence implies for this robot, when
     /// it reads one (the physics estimator: the posterior of the prior coordinates), before what the network adds.
     fn estimate_with_spread(&self, recordings: &[&Recording]) -> Result<Estimated, EstimatorError> {
-        Ok(Estimated { labels: self.estimate(recordings)?, posterior: None, noise: spread::Noise::Floor })
+        Ok(Estimated {
+            labels: self.estimate(recordings)?,
+            posterior: None,
+            noise: spread::Noise::Floor,
+            deviation: None,
+        })
     }
 
     /// Whether `robot` was held out of its training whole (never under a split by trajectory or window).

@@ -2,16 +2,17 @@
 //!
 //! - The estimator's. An RMSE over validation robots is one number for all of them, while the errors are
 //!   heavy-tailed: a robot whose log barely moves a joint errs ten thousand times more than the median one, and the
-//!   RMSE is too wide for most robots and too narrow for those. The evidence says robot by robot what it pins down
-//!   (the posterior of the prior coordinates, through the labels by the delta method:
-//!   [`dynforge_dataset::evidence::label_posterior`]).
+//!   RMSE is too wide for most robots and too narrow for those. The evidence says robot by robot what it pins down:
+//!   the posterior of the prior coordinates, drawn through the labels, as its deviation from the estimate
+//!   ([`crate::Estimated::deviation`], `dynforge_dataset::evidence::label_deviation`).
 //! - The refinement's: the posterior after the log's own torques (`dynforge_identify::refine`).
 //!
 //! Both posteriors assume white torque noise at a level of at least a floor. On a simulated log the floor is the
 //! whole noise, tens of times the residual the true parameters leave, and the posterior is that much too wide. And
 //! the residual that is there (the pairing's discretization) is the same in every sample and every log, which no
 //! white-noise posterior sees: it can be too sure of what the torques pin (centres of mass). So each posterior gets,
-//! per label, a scale `a <= 1` for a posterior at its floor and a floor `f` in quadrature: `std = hypot(a s, f)`.
+//! per label, a scale `a` for a posterior at its floor (mostly under 1; the estimator's is drawn from the sandwich
+//! its residual supports, which can be too narrow) and a floor `f` in quadrature: `std = hypot(a s, f)`.
 //! A log noisier than the floor (a real robot's) has a posterior of its own noise, which the network's estimate does
 //! not quite follow: its scale (either way) and floor are measured on the same validation logs given effort noise,
 //! at three levels, and applied by the log's measured noise. All are measured on the validation robots, from one log
@@ -234,8 +235,8 @@ impl ValidationSpreads {
 
     pub fn markdown(&self) -> String {
         let mut out = format!(
-            "\n**Spreads** ({} {}): the estimator's spread is the evidence's posterior per label, the \
-             refined one the posterior after the log's torques, each calibrated per label and log count toward 68 % of the labels within \
+            "\n**Spreads** ({} {}): the estimator's spread is the evidence's posterior per label (its deviation \
+             from the estimate; on a simulated log, of the posterior its residual supports), the refined one the posterior after the log's torques, each calibrated per label and log count toward 68 % of the labels within \
              one and 95 % within two: a scale and a floor in quadrature for a posterior at its noise floor, and for a \
              log with effort noise a scale per noise level, measured on the same logs given 0.3, 1 and 3 % noise (an \
              estimator without a posterior gets a floor only). Labels within one / two spreads:\n\n| logs | spread | as the posterior says | calibrated |\n\
@@ -340,19 +341,15 @@ pub fn at_least(spread: f64, family: f64) -> f64 {
     spread.max(LEAST * family)
 }
 
-/// The estimator's standard deviation per label [SI]: the evidence's own (`posterior`, zero when the estimator
-/// gives none; assuming `noise`) as `calibration` puts it; the family's spread (`family`) where the evidence leaves
-/// at least [`UNTOLD`] of it; never under [`LEAST`] of it.
-pub fn estimator_spread(
-    posterior: Option<&Labels>,
-    noise: Noise,
-    calibration: &Calibration,
-    family: &Labels,
-) -> Labels {
-    let part = calibration.part(noise);
-    std::array::from_fn(|k| match posterior.map_or(0.0, |p| p[k]) {
+/// The estimator's standard deviation per label [SI]: the evidence's deviation from the estimate
+/// ([`Estimated::deviation`], zero when the estimator gives none; assuming `noise`) as `calibration` puts it; the
+/// family's spread (`family`) where the evidence's posterior leaves at least [`UNTOLD`] of it; never under [`LEAST`]
+/// of it.
+pub fn estimator_spread(e: &Estimated, calibration: &Calibration, family: &Labels) -> Labels {
+    let part = calibration.part(e.noise);
+    std::array::from_fn(|k| match e.posterior.map_or(0.0, |p| p[k]) {
         s if s >= UNTOLD * family[k] => family[k],
-        s => at_least(part.apply(k, s), family[k]),
+        _ => at_least(part.apply(k, e.deviation(k)), family[k]),
     })
 }
 
@@ -381,8 +378,8 @@ fn shares(pairs: impl Iterator<Item = (f64, f64)>) -> (f64, f64) {
 /// every floor at which some robot's label enters one or two spreads (or the floor `fixed`), the pair whose shares
 /// within one and two miss their targets least (in units of their tolerances; on a tie, the scale nearer 1 and the
 /// smaller floor). Scales run from 1 down to a thousandth, and with `widen` up to [`WIDEN_STEPS`] too: a posterior
-/// at the noise floor overstates the noise and is only narrowed; one above it may be too narrow (the estimate is the
-/// network's, not the posterior's mean).
+/// at the noise floor overstates the noise, but what the calibration scales is the deviation of the posterior
+/// its residual supports from the network's estimate, which may be too narrow at the floor and above it.
 pub fn calibrate(pairs: &[(f64, f64)], widen: bool, fixed: Option<f64>) -> (f64, f64) {
     let steps = (1..=SCALE_STEPS).flat_map(|i| {
         let up = (widen && i <= WIDEN_STEPS).then_some(i);
@@ -440,11 +437,8 @@ fn part_of(pairs: impl Fn(usize) -> Vec<(f64, f64)>, floor_of: Option<&Part>) ->
     if per_label.iter().any(|p| p.len() < MIN_ROBOTS) {
         return None;
     }
-    let (scale, floor) = per_label
-        .iter()
-        .enumerate()
-        .map(|(k, p)| calibrate(p, floor_of.is_some(), floor_of.map(|f| f.floor(k))))
-        .unzip();
+    let (scale, floor) =
+        per_label.iter().enumerate().map(|(k, p)| calibrate(p, true, floor_of.map(|f| f.floor(k)))).unzip();
     Some(Part { scale, floor })
 }
 
@@ -495,7 +489,7 @@ type Case<'a> = (&'a Labels, &'a Protocol);
 /// evidence about the posterior's width.
 fn fit_count(clean: &[Case], noisy: &[Vec<Case>], family: &Labels) -> Fitted {
     let error = |truth: &Labels, p: &Protocol, k: usize| p.estimated.labels[k] - truth[k];
-    let posterior = |p: &Protocol, k: usize| p.estimated.posterior.map_or(0.0, |s| s[k]);
+    let posterior = |p: &Protocol, k: usize| p.estimated.deviation(k);
     let at_floor = |p: &Protocol| p.estimated.noise == Noise::Floor;
     let measured = |cases: &[Case]| -> Option<f64> {
         let mut levels: Vec<f64> = cases
@@ -530,7 +524,7 @@ fn fit_count(clean: &[Case], noisy: &[Vec<Case>], family: &Labels) -> Fitted {
     let refine_all = |cases: &[Case]| -> Vec<(Labels, Refined, Noise)> {
         map_in_order(cases, |(truth, p)| {
             let e = &p.estimated;
-            let spread = estimator_spread(e.posterior.as_ref(), e.noise, &estimator, family);
+            let spread = estimator_spread(e, &estimator, family);
             let got = refine_normal_equations(&p.model, &p.file, p.ne.clone(), &e.labels, &spread).ok()?;
             let noise = refined_noise(&got.refined, e.noise);
             Some((std::array::from_fn(|k| got.refined.labels[k] - truth[k]), got.refined, noise))
@@ -568,7 +562,7 @@ fn fit_count(clean: &[Case], noisy: &[Vec<Case>], family: &Labels) -> Fitted {
         for (name, c) in [("estimator", Calibration::identity()), ("estimator, calibrated", estimator.clone())] {
             let (one, two) = shares(cases.iter().flat_map(|(t, p)| {
                 let e = &p.estimated;
-                let spread = estimator_spread(e.posterior.as_ref(), e.noise, &c, family);
+                let spread = estimator_spread(e, &c, family);
                 (0..NUM_LABELS).map(move |k| (error(t, p, k), spread[k]))
             }));
             coverage.push(Coverage { what: format!("{name}{what}"), within_one: one, within_two: two });
@@ -850,12 +844,26 @@ mod tests {
             noisy: vec![],
         };
         let wide = [100.0; NUM_LABELS];
-        assert_eq!(estimator_spread(Some(&post), Noise::Floor, &c, &wide)[0], 5.0);
-        assert_eq!(estimator_spread(None, Noise::Floor, &c, &wide)[0], 4.0);
-        assert_eq!(estimator_spread(None, Noise::Measured(0.01), &Calibration::identity(), &family)[0], 1e-9);
+        let e = |posterior: Option<Labels>, noise: Noise, deviation: Option<Labels>| Estimated {
+            labels: [0.0; NUM_LABELS],
+            posterior,
+            noise,
+            deviation,
+        };
+        assert_eq!(estimator_spread(&e(Some(post), Noise::Floor, None), &c, &wide)[0], 5.0);
+        assert_eq!(estimator_spread(&e(None, Noise::Floor, None), &c, &wide)[0], 4.0);
+        let none_noisy = e(None, Noise::Measured(0.01), None);
+        assert_eq!(estimator_spread(&none_noisy, &Calibration::identity(), &family)[0], 1e-9);
+        // The calibration scales the posterior's deviation from the estimate where there is one, at the floor and
+        // above it (here with no noisy part: scale 1 and the floor's floor).
+        let (post60, deviation) = (Some([60.0; NUM_LABELS]), Some([30.0; NUM_LABELS]));
+        let wider = [1e3; NUM_LABELS];
+        assert_eq!(estimator_spread(&e(post60, Noise::Floor, deviation), &c, &wider)[0], 5.0);
+        assert_eq!(estimator_spread(&e(post60, Noise::Floor, Some([0.0; NUM_LABELS])), &c, &wider)[0], 4.0);
+        assert_eq!(estimator_spread(&e(post60, Noise::Measured(0.01), deviation), &c, &wider)[0], 30f64.hypot(4.0));
         // A posterior of 0.4 of the family's spread or more: the log cannot tell the label, the family's spread
-        // stands, however the calibration would narrow it.
-        assert_eq!(estimator_spread(Some(&post), Noise::Floor, &c, &[75.0; NUM_LABELS])[0], 75.0);
-        assert_eq!(estimator_spread(Some(&post), Noise::Floor, &c, &[75.1; NUM_LABELS])[0], 5.0);
+        // stands, however the calibration would narrow it or the deviation differ.
+        assert_eq!(estimator_spread(&e(post60, Noise::Floor, deviation), &c, &[150.0; NUM_LABELS])[0], 150.0);
+        assert_eq!(estimator_spread(&e(post60, Noise::Floor, deviation), &c, &[150.1; NUM_LABELS])[0], 5.0);
     }
 }

@@ -31,7 +31,9 @@ mod solve;
 
 pub use calibrate::{CalibrateError, Identification, Options, identify_logs};
 pub use labels::{labels_of_parameters, parameters_of_labels};
-pub use latent::{Evidence, LatentSums, ParameterPrior, Posterior, latent_blocks, packed_len};
+pub use latent::{
+    BatchScatter, Evidence, LatentSums, ParameterPrior, Posterior, batch_scatter, latent_blocks, packed_len,
+};
 pub use normal::{NormalEquations, TorqueError};
 pub use refine::{Prior, Refined, refine};
 pub use samples::{PAIRED_NOISE_GAIN, PAIRING_REVISION, REST_SPEED, STOPPED_SPEED};

@@ -20,7 +20,7 @@ mod sums;
 
 pub use evidence::{Evidence, Posterior};
 pub use prior::ParameterPrior;
-pub use sums::{LatentSums, latent_blocks};
+pub use sums::{BatchScatter, LatentSums, batch_scatter, latent_blocks};
 
 /// Index of `(i, j)`, `i <= j`, in a packed upper triangle of an `r x r` matrix.
 fn packed(r: usize, i: usize, j: usize) -> usize {

@@ -3,7 +3,7 @@
 use dynforge_proto::params::{FRICTION_PARAMS_PER_JOINT as NF, INERTIAL_PARAMS_PER_LINK as NI};
 use dynforge_recording::JointTrajectory;
 use dynforge_robot::{Data, Model};
-use nalgebra::DVector;
+use nalgebra::{DMatrix, DVector};
 
 use super::{Evidence, ParameterPrior, packed_len};
 use crate::IdentifyError;
@@ -156,4 +156,127 @@ pub fn latent_blocks(
         }
     });
     Ok(blocks)
+}
+
+/// How the evidence's scores scatter between consecutive batches of samples against what the noise it assumed would
+/// make of them (batch means): `observed = sum_k s_k^T P^-1 s_k` over each batch's score `s_k` at the posterior
+/// mean, and `expected = sum_k tr(P^-1 (H_k - H_k P^-1 H_k))`, white noise at the assumed weights after the fit, with
+/// `P = I + H` the posterior precision (so directions the prior decides count little). Sums add over logs.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BatchScatter {
+    pub observed: f64,
+    pub expected: f64,
+}
+
+impl BatchScatter {
+    pub fn add(&mut self, other: &BatchScatter) {
+        self.observed += other.observed;
+        self.expected += other.expected;
+    }
+
+    /// `observed / expected`: about 1 for white noise at the assumed level, under 1 for a residual under the floor
+    /// (a simulated log's), and above what the residual's power alone gives where it is coherent over many samples
+    /// (a model error smooth in time), whose evidence is then worth fewer independent samples than it counts. The
+    /// posterior's variance times this is the sandwich (robust) variance along the directions the data decide.
+    pub fn ratio(&self) -> f64 {
+        if self.expected > 0.0 { self.observed / self.expected } else { 1.0 }
+    }
+}
+
+/// The [`BatchScatter`] of `batches` (consecutive, each longer than the noise's correlation), weighted as
+/// [`LatentSums::evidence_with_noise`] weighs their sum.
+pub fn batch_scatter(batches: &[LatentSums], floor: f64, variance: &[f64]) -> Result<BatchScatter, IdentifyError> {
+    let Some(first) = batches.first() else { return Ok(BatchScatter::default()) };
+    let r = first.rank;
+    let mut total = LatentSums::new(first.joints.len(), r);
+    batches.iter().for_each(|b| total.merge(b));
+    let e = total.evidence_with_noise(floor, variance);
+    let z = DVector::from_vec(e.posterior()?.mean);
+    let weights: Vec<f64> = total
+        .joints
+        .iter()
+        .zip(variance)
+        .map(|(j, v)| match j.n > 0 && j.tt > 0.0 {
+            true => 1.0 / (floor * floor * j.tt / j.n as f64).max(*v),
+            false => 0.0,
+        })
+        .collect();
+    let p = DMatrix::identity(r, r) + Evidence::unpack(r, &e.h);
+    let p_inv = p.cholesky().ok_or(IdentifyError::Decomposition)?.inverse();
+    let mut scatter = BatchScatter::default();
+    for batch in batches {
+        let mut h = DMatrix::zeros(r, r);
+        let mut s = DVector::zeros(r);
+        for (j, w) in batch.joints.iter().zip(&weights).filter(|(_, w)| **w > 0.0) {
+            let uu = Evidence::unpack(r, &j.uu);
+            s += (DVector::from_column_slice(&j.ue) - &uu * &z) * *w;
+            h += uu * *w;
+        }
+        scatter.observed += (&p_inv * &s).dot(&s);
+        scatter.expected += (&p_inv * (&h - &h * &p_inv * &h)).trace();
+    }
+    Ok(scatter)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dynforge_robot::rng::Rng;
+
+    /// Batches of `per_batch` samples of one joint whose rows are `u_t = (1, sin(t / 200), cos(t / 350))` (smooth,
+    /// as a regressor along a trajectory is) and whose torques are `u_t . z + noise_t`, the noise assumed white with
+    /// variance 1 (floor 1, torque power `n`).
+    fn batches(noise: &[f64], per_batch: usize) -> Vec<LatentSums> {
+        let z = [0.5, -1.0, 2.0];
+        let mut out = Vec::new();
+        for chunk in noise.chunks(per_batch).enumerate().map(|(k, c)| (k * per_batch, c)) {
+            let mut s = LatentSums::new(1, 3);
+            let j = &mut s.joints[0];
+            for (i, e) in chunk.1.iter().enumerate() {
+                let t = (chunk.0 + i) as f64;
+                let u = [1.0, (t / 200.0).sin(), (t / 350.0).cos()];
+                let e = u.iter().zip(&z).map(|(a, b)| a * b).sum::<f64>() + e;
+                let mut at = 0;
+                for a in 0..3 {
+                    for b in a..3 {
+                        j.uu[at] += u[a] * u[b];
+                        at += 1;
+                    }
+                    j.ue[a] += u[a] * e;
+                }
+                j.ee += e * e;
+                j.tt += 1.0;
+                j.n += 1;
+            }
+            out.push(s);
+        }
+        out
+    }
+
+    /// White noise at the assumed level scatters the batches' scores as the evidence assumes (the estimate's own
+    /// sampling error over 3 directions x 200 batches is ~6 %); a tenth of it scatters them a hundredth as much; the
+    /// same power correlated over ~100 samples (AR(1), phi 0.99, a smooth model error) scatters them by its long-run
+    /// variance, `(1 + phi) / (1 - phi) = 199` times the white noise's, less what the fit absorbs.
+    #[test]
+    fn batch_scores_scatter_as_the_noise_is_white_or_coherent() {
+        let n = 200 * 256;
+        let mut rng = Rng::stream(7, &[1]);
+        let white: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
+        let k = batch_scatter(&batches(&white, 256), 1.0, &[0.0]).unwrap().ratio();
+        assert!((k - 1.0).abs() < 0.25, "white noise at the assumed level: {k}");
+        let tenth: Vec<f64> = white.iter().map(|e| 0.1 * e).collect();
+        let k = batch_scatter(&batches(&tenth, 256), 1.0, &[0.0]).unwrap().ratio();
+        assert!((k - 0.01).abs() < 0.0025, "a tenth of it: {k}");
+        let phi: f64 = 0.99;
+        let mut x = 0.0;
+        let coherent: Vec<f64> = white
+            .iter()
+            .map(|e| {
+                x = phi * x + (1.0 - phi * phi).sqrt() * e;
+                x
+            })
+            .collect();
+        let k = batch_scatter(&batches(&coherent, 256), 1.0, &[0.0]).unwrap().ratio();
+        assert!(k > 50.0 && k < 400.0, "coherent noise of the same power: {k}");
+    }
 }

@@ -44,7 +44,7 @@ impl Estimator for Predictor {
 
     fn estimate_with_spread(&self, recordings: &[&Recording]) -> Result<Estimated, EstimatorError> {
         let e = Predictor::estimate(self, recordings)?;
-        Ok(Estimated { labels: e.labels, posterior: e.posterior, noise: e.assumed_noise() })
+        Ok(e.evidence())
     }
 }
 

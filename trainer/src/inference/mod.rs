@@ -7,22 +7,24 @@ mod report;
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use dynforge_identify::{Evidence, ParameterPrior};
+use dynforge_identify::{BatchScatter, Evidence, ParameterPrior};
 use dynforge_proto::NUM_LABELS;
 use dynforge_recording::{GRID_DT, ReadError, Recording, read};
 use dynforge_robot::Model;
 
 use dynforge_dataset::cache::CacheError;
 use dynforge_dataset::cache::windows::CachedWindows;
-use dynforge_dataset::evidence::{EvidenceError, NOISE_FLOOR, features, label_posterior, measured_evidence};
+use dynforge_dataset::evidence::{
+    COHERENCE, EvidenceError, NOISE_FLOOR, features, label_deviation, label_posterior, measured_evidence,
+};
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::windows::{row_width, windows};
-use dynforge_evaluation::EvaluationError;
 use dynforge_evaluation::recording::{RecordingError, physical_parameters};
 use dynforge_evaluation::spread::{
     Calibration, Noise, ValidationSpreads, at_least, between_log_counts, estimator_spread, refine_recordings,
     refined_noise,
 };
+use dynforge_evaluation::{Estimated, EvaluationError};
 
 use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::evaluation::plots::PlotError;
@@ -77,6 +79,13 @@ pub struct Estimate {
     pub posterior: Option<[f64; NUM_LABELS]>,
     /// Physics estimator: the labels [SI] at the evidence's posterior mean (with the family as prior).
     pub plug_in: Option<[f64; NUM_LABELS]>,
+    /// Physics estimator: how the logs' scores scatter between quarter seconds against the noise the evidence
+    /// assumed (`BatchScatter::ratio`).
+    pub scatter: Option<f64>,
+    /// Physics estimator: how far each label [SI] of the posterior lies from the estimate (`label_deviation`: the
+    /// spread whose intervals about it hold the posterior's central 68 and 95 %); for a simulated log, of the
+    /// posterior its residual supports (the sandwich at `COHERENCE` times its scatter). What the calibration scales.
+    pub deviation: Option<[f64; NUM_LABELS]>,
 }
 
 impl Estimate {
@@ -88,6 +97,16 @@ impl Estimate {
             None => Noise::Floor,
         }
     }
+
+    /// What the spreads' calibration reads of this estimate.
+    pub fn evidence(&self) -> Estimated {
+        Estimated {
+            labels: self.labels,
+            posterior: self.posterior,
+            noise: self.assumed_noise(),
+            deviation: self.deviation,
+        }
+    }
 }
 
 /// Whether every joint's torque noise (NRMSE) is the evidence's floor, as on a simulated log: its posterior is then
@@ -96,8 +115,9 @@ fn at_noise_floor(noise: &[f64]) -> bool {
     noise.iter().all(|&n| n <= NOISE_FLOOR * (1.0 + 1e-6))
 }
 
-/// The evidence of a whole recording and each joint's torque noise (NRMSE) it was weighted by.
-pub type WholeRecording = (Evidence, Vec<f64>);
+/// The evidence of a whole recording, each joint's torque noise (NRMSE) it was weighted by, and how its scores
+/// scatter against that noise.
+pub type WholeRecording = (Evidence, Vec<f64>, BatchScatter);
 
 /// An estimate refined by physics.
 #[derive(Debug, Clone)]
@@ -275,7 +295,7 @@ impl Predictor {
         let spec = self.checkpoint.window_spec();
         if let Some(prior) = &self.prior {
             let m = measured_evidence(rec, prior, &spec)?;
-            return Ok((self.predict_evidence(&m.windows)?, Some((m.whole, m.noise))));
+            return Ok((self.predict_evidence(&m.windows)?, Some((m.whole, m.noise, m.scatter))));
         }
         let (count, data) = windows(rec, &spec, &features);
         let w = CachedWindows {
@@ -298,10 +318,12 @@ impl Predictor {
         let mut per_window = Vec::new();
         let mut whole: Option<Evidence> = None;
         let mut noise: Vec<f64> = Vec::new();
+        let mut scatter = BatchScatter::default();
         for rec in recs {
             let (w, e) = self.windows(rec)?;
             per_window.extend(w);
-            if let Some((e, n)) = e {
+            if let Some((e, n, s)) = e {
+                scatter.add(&s);
                 noise.resize(n.len(), 0.0);
                 noise.iter_mut().zip(&n).for_each(|(a, b)| *a = a.max(*b));
                 match &mut whole {
@@ -313,18 +335,22 @@ impl Predictor {
         let n = per_window.len() as f64;
         let mean: [f64; NUM_LABELS] = std::array::from_fn(|k| per_window.iter().map(|y| y[k]).sum::<f64>() / n);
         let family: [f64; NUM_LABELS] = std::array::from_fn(|k| self.checkpoint.label_std[k]);
-        let (labels, posterior, plug_in) = match (whole, &self.prior) {
+        let (labels, posterior, plug_in, deviation) = match (whole, &self.prior) {
             (Some(e), Some(prior)) => {
-                let post = e.posterior().map_err(|err| RecordingError {
+                let bad = |err: dynforge_identify::IdentifyError| RecordingError {
                     file: recs.first().map_or(String::new(), |r| r.path.display().to_string()),
                     problem: err.to_string(),
-                })?;
-                // Where the delta method has no answer (a link mass near zero) the family's spread stands.
-                let (plug_in, spread) = label_posterior(prior, &post);
-                let spread = std::array::from_fn(|k| if spread[k].is_finite() { spread[k] } else { family[k] });
-                (self.predict_evidence(&[e])?[0], Some(spread), Some(plug_in))
+                };
+                // Where the posterior has no answer (a link mass near zero) the family's spread stands.
+                let finite =
+                    |s: [f64; NUM_LABELS]| std::array::from_fn(|k| if s[k].is_finite() { s[k] } else { family[k] });
+                let (plug_in, spread) = label_posterior(prior, &e.posterior().map_err(bad)?);
+                let labels = self.predict_evidence(std::slice::from_ref(&e))?[0];
+                let kappa = if at_noise_floor(&noise) { COHERENCE * scatter.ratio() } else { 1.0 };
+                let deviation = label_deviation(prior, &e.sandwich(kappa).map_err(bad)?, &labels);
+                (labels, Some(finite(spread)), Some(plug_in), Some(finite(deviation)))
             }
-            _ => (mean, None, None),
+            _ => (mean, None, None, None),
         };
         let mut estimate = Estimate {
             labels,
@@ -335,11 +361,13 @@ impl Predictor {
             noise,
             posterior,
             plug_in,
+            scatter: posterior.map(|_| scatter.ratio()),
+            deviation,
         };
         // The calibration's part for the noise the evidence assumed: at the floor (a simulated log) or at the log's.
         if let Some(v) = &self.validated {
             estimate.spread = match &v.calibration {
-                Some(c) => estimator_spread(posterior.as_ref(), estimate.assumed_noise(), &c.at(recs.len()).0, &family),
+                Some(c) => estimator_spread(&estimate.evidence(), &c.at(recs.len()).0, &family),
                 None => {
                     let rmse = v.rmse(recs.len());
                     std::array::from_fn(|k| at_least(rmse[k], family[k]))

@@ -125,7 +125,7 @@ impl EstimateReport {
                 let v = serde_json::json!({
                     "value": self.values[k], "estimator": e.labels[k], "spread": self.spread()[k],
                     "estimator_spread": e.spread[k], "evidence_spread": e.posterior.map(|p| p[k]),
-                    "family_spread": e.family[k],
+                    "posterior_deviation": e.deviation.map(|p| p[k]), "family_spread": e.family[k],
                     "refined_posterior": self.refinement.as_ref().map(|r| r.posterior[k]),
                     "decided": decided, "unit": l.kind.unit()
                 });
