@@ -165,6 +165,7 @@ pub struct RecipeFlags {
     /// Transformer architecture preset [default: paper; pipeline: fast].
     #[arg(long, value_enum)]
     pub preset: Option<Architecture>,
+    /// Transformer: encoder layers; physics: hidden layers [default: 4; physics 3].
     #[arg(long, value_parser = whole::<usize>(1, 1 << 16))]
     pub layers: Option<usize>,
     /// Transformer: attention heads.
@@ -176,6 +177,7 @@ pub struct RecipeFlags {
     /// Transformer: time steps per token.
     #[arg(long, value_parser = whole::<usize>(1, 1 << 16))]
     pub patch: Option<usize>,
+    /// Dropout rate during training, in [0, 1) [default: transformer 0.1, physics 0].
     #[arg(long)]
     pub dropout: Option<f64>,
     /// Sequence length L (time steps per window).

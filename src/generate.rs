@@ -92,8 +92,10 @@ pub struct MergeArgs {
 
 #[derive(Args)]
 pub struct WorkerArgs {
+    /// The run directory whose coordinator started this worker.
     #[arg(long)]
     dir: PathBuf,
+    /// The worker's slot among the coordinator's N: its shared-memory channels and its log.
     #[arg(long)]
     slot: usize,
 }

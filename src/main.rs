@@ -171,3 +171,29 @@ fn chain(e: &anyhow::Error) -> String {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `--help` is the reference a user reads first: every option of every command, nested ones included, says what
+    /// it is (clap prints an option without a doc comment with an empty line).
+    #[test]
+    fn every_option_of_every_command_has_help() {
+        fn walk(cmd: &clap::Command, path: &str, missing: &mut Vec<String>) {
+            for arg in cmd.get_arguments() {
+                let id = arg.get_id().as_str();
+                if id == "help" || id == "version" || arg.get_help().is_some() || arg.get_long_help().is_some() {
+                    continue;
+                }
+                missing.push(format!("{path} {}", arg.get_long().map_or(id.to_string(), |l| format!("--{l}"))));
+            }
+            for sub in cmd.get_subcommands() {
+                walk(sub, &format!("{path} {}", sub.get_name()), missing);
+            }
+        }
+        let mut missing = Vec::new();
+        walk(&Cli::command(), "dynforge", &mut missing);
+        assert!(missing.is_empty(), "options without help: {missing:?}");
+    }
+}
