@@ -149,7 +149,7 @@ fn evidence_of(
     let block = spec.block();
     let blocks = latent_blocks(&rec.model, prior, &rec.trajectory, block).map_err(bad)?;
     let sum = |range: std::ops::Range<usize>| {
-        sum_of(rec.model.dof(), prior.rank(), &blocks[range.start / block..range.end.div_ceil(block)])
+        LatentSums::sum(rec.model.dof(), prior.rank(), &blocks[range.start / block..range.end.div_ceil(block)])
     };
     let all = sum(0..len);
     let variance = match measure {
@@ -162,7 +162,7 @@ fn evidence_of(
         true => {
             let batches: Vec<LatentSums> = blocks
                 .chunks(SCATTER_BATCH.div_ceil(block))
-                .map(|c| sum_of(rec.model.dof(), prior.rank(), c))
+                .map(|c| LatentSums::sum(rec.model.dof(), prior.rank(), c))
                 .collect();
             batch_scatter(&batches, NOISE_FLOOR, &variance).map_err(bad)?
         }
@@ -174,13 +174,6 @@ fn evidence_of(
         noise: noise.collect(),
         scatter,
     })
-}
-
-/// The sums of consecutive `blocks`.
-fn sum_of(dof: usize, rank: usize, blocks: &[LatentSums]) -> LatentSums {
-    let mut s = LatentSums::new(dof, rank);
-    blocks.iter().for_each(|b| s.merge(b));
-    s
 }
 
 /// Values of a standardised label the plug-in estimate is clipped to: a posterior mean with a link mass near zero
@@ -279,8 +272,7 @@ pub const LABEL_DRAWS: usize = 2048;
 /// not (a mass at zero in more than 2.3 % of the draws).
 pub fn label_deviation(prior: &ParameterPrior, post: &Posterior, estimate: &[f64; NUM_LABELS]) -> [f64; NUM_LABELS] {
     let r = prior.rank();
-    let eig = nalgebra::SymmetricEigen::new(post.covariance());
-    let root = &eig.eigenvectors * nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|v| v.max(0.0).sqrt()));
+    let root = covariance_root(post);
     let mean = nalgebra::DVector::from_column_slice(&post.mean);
     let mut rng = Rng::stream(DEVIATION_STREAM, &[]);
     let mut draws: Vec<Vec<f64>> = (0..NUM_LABELS).map(|_| Vec::with_capacity(LABEL_DRAWS)).collect();
@@ -298,6 +290,13 @@ pub fn label_deviation(prior: &ParameterPrior, post: &Posterior, estimate: &[f64
         let (one, two) = (at(ONE_SIDED).abs().max(at(1.0 - ONE_SIDED)), at(TWO_SIDED).abs().max(at(1.0 - TWO_SIDED)));
         one.max(0.5 * two)
     })
+}
+
+/// A square root `L` of the posterior's covariance (`L L^T`, by its eigen-decomposition, rounding's negative
+/// eigenvalues taken as zero): `mean + L xi` with standard normal `xi` is a draw from it.
+fn covariance_root(post: &Posterior) -> nalgebra::DMatrix<f64> {
+    let eig = nalgebra::SymmetricEigen::new(post.covariance());
+    &eig.eigenvectors * nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|v| v.max(0.0).sqrt()))
 }
 
 /// The lower percentiles of a standard normal's central 68.3 and 95.4 %: one and two standard deviations.
@@ -360,8 +359,7 @@ mod tests {
         let estimate = labels_of_parameters(&prior.parameters(&truth));
         let deviation = label_deviation(&prior, &post, &estimate);
         let r = prior.rank();
-        let eig = nalgebra::SymmetricEigen::new(post.covariance());
-        let root = &eig.eigenvectors * nalgebra::DMatrix::from_diagonal(&eig.eigenvalues.map(|v| v.max(0.0).sqrt()));
+        let root = covariance_root(&post);
         let mut rng = Rng::stream(11, &[]);
         let n = 4096;
         let (mut one, mut two) = ([0usize; NUM_LABELS], [0usize; NUM_LABELS]);

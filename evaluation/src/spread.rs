@@ -489,7 +489,7 @@ type Case<'a> = (&'a Labels, &'a Protocol);
 /// evidence about the posterior's width.
 fn fit_count(clean: &[Case], noisy: &[Vec<Case>], family: &Labels) -> Fitted {
     let error = |truth: &Labels, p: &Protocol, k: usize| p.estimated.labels[k] - truth[k];
-    let posterior = |p: &Protocol, k: usize| p.estimated.deviation(k);
+    let deviation = |p: &Protocol, k: usize| p.estimated.deviation(k);
     let at_floor = |p: &Protocol| p.estimated.noise == Noise::Floor;
     let measured = |cases: &[Case]| -> Option<f64> {
         let mut levels: Vec<f64> = cases
@@ -504,14 +504,14 @@ fn fit_count(clean: &[Case], noisy: &[Vec<Case>], family: &Labels) -> Fitted {
     };
     let at_floor_part = |pairs: &dyn Fn(usize) -> Vec<(f64, f64)>| part_of(pairs, None).unwrap_or_else(Part::identity);
     let estimator_at_floor = at_floor_part(&|k| {
-        clean.iter().filter(|(_, p)| at_floor(p)).map(|(t, p)| (error(t, p, k), posterior(p, k))).collect()
+        clean.iter().filter(|(_, p)| at_floor(p)).map(|(t, p)| (error(t, p, k), deviation(p, k))).collect()
     });
     let estimator = Calibration {
         noisy: noisy
             .iter()
             .filter_map(|cases| {
                 let pairs =
-                    |k| cases.iter().filter(|(_, p)| !at_floor(p)).map(move |(t, p)| (error(t, p, k), posterior(p, k)));
+                    |k| cases.iter().filter(|(_, p)| !at_floor(p)).map(move |(t, p)| (error(t, p, k), deviation(p, k)));
                 Some(AtNoise {
                     noise: measured(cases)?,
                     part: part_of(|k| pairs(k).collect(), Some(&estimator_at_floor))?,

@@ -35,6 +35,14 @@ impl LatentSums {
         LatentSums { rank, joints: vec![zero; dof] }
     }
 
+    /// The sums of `parts` (each of `dof` joints and `rank` coordinates): a window's of its blocks, a log's of its
+    /// batches.
+    pub fn sum(dof: usize, rank: usize, parts: &[LatentSums]) -> Self {
+        let mut s = LatentSums::new(dof, rank);
+        parts.iter().for_each(|p| s.merge(p));
+        s
+    }
+
     pub fn merge(&mut self, other: &LatentSums) {
         for (a, b) in self.joints.iter_mut().zip(&other.joints) {
             a.uu.iter_mut().zip(&b.uu).for_each(|(x, y)| *x += y);
@@ -63,12 +71,24 @@ impl LatentSums {
     pub fn evidence_with_noise(&self, floor: f64, variance: &[f64]) -> Evidence {
         let r = self.rank;
         let mut e = Evidence { rank: r, h: vec![0.0; packed_len(r)], b: vec![0.0; r] };
-        for (j, v) in self.joints.iter().zip(variance).filter(|(j, _)| j.n > 0 && j.tt > 0.0) {
-            let w = 1.0 / (floor * floor * j.tt / j.n as f64).max(*v);
+        for (j, w) in self.joints.iter().zip(self.weights(floor, variance)).filter(|(_, w)| *w > 0.0) {
             e.h.iter_mut().zip(&j.uu).for_each(|(x, y)| *x += w * y);
             e.b.iter_mut().zip(&j.ue).for_each(|(x, y)| *x += w * y);
         }
         e
+    }
+
+    /// Each joint's weight in [`Self::evidence_with_noise`]: one over its noise variance, the larger of `floor` times
+    /// its torque's RMS, squared, and `variance[j]`; 0 for a joint that never moved or carried no torque.
+    fn weights(&self, floor: f64, variance: &[f64]) -> Vec<f64> {
+        self.joints
+            .iter()
+            .zip(variance)
+            .map(|(j, v)| match j.n > 0 && j.tt > 0.0 {
+                true => 1.0 / (floor * floor * j.tt / j.n as f64).max(*v),
+                false => 0.0,
+            })
+            .collect()
     }
 
     /// Each joint's effort noise variance as these samples show it: the mean squared residual of its paired torques
@@ -188,19 +208,10 @@ impl BatchScatter {
 pub fn batch_scatter(batches: &[LatentSums], floor: f64, variance: &[f64]) -> Result<BatchScatter, IdentifyError> {
     let Some(first) = batches.first() else { return Ok(BatchScatter::default()) };
     let r = first.rank;
-    let mut total = LatentSums::new(first.joints.len(), r);
-    batches.iter().for_each(|b| total.merge(b));
+    let total = LatentSums::sum(first.joints.len(), r, batches);
     let e = total.evidence_with_noise(floor, variance);
     let z = DVector::from_vec(e.posterior()?.mean);
-    let weights: Vec<f64> = total
-        .joints
-        .iter()
-        .zip(variance)
-        .map(|(j, v)| match j.n > 0 && j.tt > 0.0 {
-            true => 1.0 / (floor * floor * j.tt / j.n as f64).max(*v),
-            false => 0.0,
-        })
-        .collect();
+    let weights = total.weights(floor, variance);
     let p = DMatrix::identity(r, r) + Evidence::unpack(r, &e.h);
     let p_inv = p.cholesky().ok_or(IdentifyError::Decomposition)?.inverse();
     let mut scatter = BatchScatter::default();

@@ -344,10 +344,15 @@ impl Predictor {
                 // Where the posterior has no answer (a link mass near zero) the family's spread stands.
                 let finite =
                     |s: [f64; NUM_LABELS]| std::array::from_fn(|k| if s[k].is_finite() { s[k] } else { family[k] });
-                let (plug_in, spread) = label_posterior(prior, &e.posterior().map_err(bad)?);
+                let post = e.posterior().map_err(bad)?;
+                let (plug_in, spread) = label_posterior(prior, &post);
                 let labels = self.predict_evidence(std::slice::from_ref(&e))?[0];
-                let kappa = if at_noise_floor(&noise) { COHERENCE * scatter.ratio() } else { 1.0 };
-                let deviation = label_deviation(prior, &e.sandwich(kappa).map_err(bad)?, &labels);
+                // A simulated log draws from what its residual supports; a noisier one from its own posterior.
+                let drawn = match at_noise_floor(&noise) {
+                    true => e.sandwich(COHERENCE * scatter.ratio()).map_err(bad)?,
+                    false => post,
+                };
+                let deviation = label_deviation(prior, &drawn, &labels);
                 (labels, Some(finite(spread)), Some(plug_in), Some(finite(deviation)))
             }
             _ => (mean, None, None, None),
