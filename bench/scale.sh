@@ -12,6 +12,10 @@
 #   DYNFORGE_SCALE_SIZES   the sizes to train, as robot counts (default: all four, 1/8 to all of ROBOTS)
 #   DYNFORGE_SCALE_TRAJECTORIES   trajectories per robot (default 16, the paper's). A job's trajectory does not depend
 #                                 on this count, so 4 gives the first 4 of each robot's 16: the same robots, fewer jobs
+#   DYNFORGE_SCALE_HOP   time steps between window starts (`train --hop`; default 64, back to back). The partitions
+#                        are cached for it and pruned, so another hop needs another OUT
+#   DYNFORGE_SCALE_DROPOUT, DYNFORGE_SCALE_EPOCHS   the training's dropout and most epochs (default: the preset's
+#                        0.1, and 12)
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 dry=0
@@ -22,9 +26,13 @@ if [ $dry = 1 ]; then
   robots=32 trajectories=2 epochs=1 patience=3
   net=(--dim 16 --layers 1 --heads 2 --patch 4 --validation 0.5)
 else
-  robots=8192 trajectories=${DYNFORGE_SCALE_TRAJECTORIES:-16} epochs=12 patience=3
+  robots=8192 trajectories=${DYNFORGE_SCALE_TRAJECTORIES:-16} epochs=${DYNFORGE_SCALE_EPOCHS:-12} patience=3
   net=(--preset fast)
+  if [ -n "${DYNFORGE_SCALE_DROPOUT:-}" ]; then net+=(--dropout "$DYNFORGE_SCALE_DROPOUT"); fi
 fi
+hop=${DYNFORGE_SCALE_HOP:-}
+window=(); hop_flag=()
+if [ -n "$hop" ]; then window=(--window "64:64:16:$hop"); hop_flag=(--hop "$hop"); fi
 sizes=${DYNFORGE_SCALE_SIZES:-"$((robots / 8)) $((robots / 4)) $((robots / 2)) $robots"}
 mkdir -p "$out"
 log() { echo "[$(date -u +%T)] $*" >&2; }
@@ -51,7 +59,7 @@ for j in "${needed[@]}"; do
   log "partition $j/8: generate, cache, prune"
   "$bin" generate --out "$out/p$j" --robots "$robots" --trajectories "$trajectories" --seed 11 --partition "$j/8" \
     --workers "$(nproc)" >&2
-  "$bin" dataset prepare "$out/p$j" --model transformer --prune >&2
+  "$bin" dataset prepare "$out/p$j" --model transformer "${window[@]}" --prune >&2
   touch "$out/p$j.prepared"
 done
 
@@ -74,8 +82,8 @@ for size in $sizes; do
     resume=()
     [ -f "$run/train/state.json" ] && resume=(--resume)
     log "$size robots: training ${resume[*]}"
-    "$bin" train "$data" --out "$run" --model transformer "${net[@]}" --lr 1e-3 --epochs "$epochs" \
-      --patience "$patience" "${resume[@]}" 2>&1 | tee -a "$run.log" >&2
+    "$bin" train "$data" --out "$run" --model transformer "${net[@]}" "${hop_flag[@]}" --lr 1e-3 \
+      --epochs "$epochs" --patience "$patience" "${resume[@]}" 2>&1 | tee -a "$run.log" >&2
     touch "$run.trained"
   fi
   if [ ! -f "$run/report.md" ]; then

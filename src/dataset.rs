@@ -31,8 +31,8 @@ pub struct PrepareArgs {
     /// The estimator whose cache to build.
     #[arg(long, value_enum, default_value = "physics")]
     model: Estimator,
-    /// Window geometry, as `train` takes it.
-    #[arg(long = "window", value_name = "LEN:STRIDE:SSR", default_value = "64:64:16")]
+    /// Window geometry, as `train` takes it (`--len`, `--stride`, `--ssr`, and `--hop` where the windows overlap).
+    #[arg(long = "window", value_name = "LEN:STRIDE:SSR[:HOP]", default_value = "64:64:16")]
     window: WindowSpec,
     /// Then delete the shards (recorded in DIR/pruned.txt): `train` with these settings, `merge` and `verify` still
     /// work; other settings, the torque and identification checks need shards.
@@ -44,8 +44,8 @@ pub struct PrepareArgs {
 pub struct StatsArgs {
     /// A `generate` output directory, or a folder of shards.
     dir: PathBuf,
-    /// Window geometries to count, as LEN:STRIDE:SSR (default: the paper's grid around its best, 64:64:16).
-    #[arg(long = "window", value_name = "LEN:STRIDE:SSR")]
+    /// Window geometries to count, as LEN:STRIDE:SSR[:HOP] (default: the paper's grid around its best, 64:64:16).
+    #[arg(long = "window", value_name = "LEN:STRIDE:SSR[:HOP]")]
     windows: Vec<WindowSpec>,
     /// Also list the input features of a time step (for the first readable shard's robot).
     #[arg(long)]

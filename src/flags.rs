@@ -189,6 +189,11 @@ pub struct RecipeFlags {
     /// Secondary sampling rate: window offsets 0, SSR, 2 SSR, ... below the stride.
     #[arg(long, default_value_t = 16, value_parser = whole::<usize>(1, 1 << 20))]
     pub ssr: usize,
+    /// Time steps from one window's start to the next, at most --len: less overlaps them and reads the motion the
+    /// last back-to-back window of a recording leaves (half the window: 1.6x the windows of 7.4 s recordings)
+    /// [default: --len, back to back].
+    #[arg(long, value_parser = whole::<usize>(1, 1 << 20))]
+    pub hop: Option<usize>,
     /// Maximum epochs [default: 30; pipeline: 12 (transformer)].
     #[arg(long, value_parser = whole::<usize>(1, 1 << 20))]
     pub epochs: Option<usize>,
@@ -245,7 +250,7 @@ impl RecipeFlags {
         r.model.preset = self.preset.map_or(preset, Preset::from);
         (r.model.layers, r.model.heads, r.model.dim) = (self.layers, self.heads, self.dim);
         (r.model.patch, r.model.dropout) = (self.patch, self.dropout);
-        r.window = WindowSpec { len: self.len, stride: self.stride, ssr: self.ssr };
+        r.window = WindowSpec::new(self.len, self.stride, self.ssr).with_hop(self.hop.unwrap_or(self.len));
         let t = &mut r.train;
         t.epochs = self.epochs.or(epochs).unwrap_or(t.epochs);
         t.batch = self.batch.unwrap_or(t.batch);

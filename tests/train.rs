@@ -576,14 +576,27 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
         })
         .collect();
     let mut validation_robots = Vec::new();
-    for by in [HoldOut::Robots, HoldOut::Trajectories, HoldOut::Windows] {
-        let run = dir.path().join(by.name());
+    // Last, windows that overlap (`--hop`): every window of a recording overlaps the next, so the recording is one
+    // unit of the split by window.
+    let runs = [
+        (HoldOut::Robots, None),
+        (HoldOut::Trajectories, None),
+        (HoldOut::Windows, None),
+        (HoldOut::Windows, Some(32)),
+    ];
+    for (by, hop) in runs {
+        let run = dir.path().join(format!("{}{}", by.name(), hop.map_or(String::new(), |h| format!("-hop{h}"))));
         let mut args = vec!["train", d, "--out", run.to_str().unwrap(), "--split", by.name()];
         args.extend(["--epochs", "1", "--generated", "1024", "--dim", "32", "--validation", "0.34"]);
+        let hop_flag = hop.map(|h: usize| h.to_string());
+        if let Some(h) = &hop_flag {
+            args.extend(["--hop", h]);
+        }
         ok(dynforge(&args));
         let ck: serde_json::Value =
             serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
         assert_eq!(ck["held_out"], by.name());
+        assert_eq!(ck["window_hop"], hop.map_or(serde_json::Value::Null, |h| h.into()));
         let flags = ["--torque-recordings", "2", "--identify-robots", "1", "--spread-robots", "0"];
         evaluate(&run, &flags);
         let report: serde_json::Value =
@@ -597,6 +610,9 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
         let recordings = report["recordings"]["count"].as_u64().unwrap() as usize;
         let robots = report["robots"]["count"].as_u64().unwrap() as usize;
         match by {
+            _ if hop.is_some() => {
+                assert_eq!(recordings, held.len(), "overlapping windows: the recordings the rule holds out whole")
+            }
             HoldOut::Robots | HoldOut::Trajectories => {
                 assert_eq!(recordings, held.len(), "{by:?}: the recordings the rule holds out");
                 let mut r: Vec<u64> = held.iter().map(|s| s.0).collect();

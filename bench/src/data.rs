@@ -21,7 +21,7 @@ fn main() -> Result<()> {
             if p.len() != 3 {
                 bail!("LEN:STRIDE:SSR");
             }
-            WindowSpec { len: p[0], stride: p[1], ssr: p[2] }
+            WindowSpec::new(p[0], p[1], p[2])
         }
         None => WindowSpec::default(),
     };

@@ -163,7 +163,7 @@ mod tests {
             }
         }
         CachedWindows {
-            spec: WindowSpec { len: 2, stride: 1, ssr: 1 },
+            spec: WindowSpec::new(2, 1, 1),
             width: 3,
             data,
             labels: (0..4).map(|i| [i as f64; NUM_LABELS]).collect(),

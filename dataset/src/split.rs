@@ -3,6 +3,7 @@
 //! in training with other recordings or other windows, the protocols a paper may have used without saying so
 //! (a network that recognises a robot by its kinematics can recall its parameters there).
 
+use crate::window::WindowSpec;
 use dynforge_proto::content_hash;
 
 /// Which side of the split a sample belongs to.
@@ -100,32 +101,47 @@ fn unit(key: &[u64]) -> f64 {
     (content_hash(&bytes) >> 11) as f64 / (1u64 << 53) as f64
 }
 
-/// The time segment of each of a recording's `count` windows, listed as [`crate::window::WindowSpec::windows`]
-/// lists them (offset by offset, each offset's in time order) for `offsets` offsets: the k-th window of every offset
-/// is segment k, the same stretch of motion shifted by multiples of the secondary sampling rate. The offsets' window
-/// counts differ by at most one and do not rise with the offset, so the first `count % offsets` hold one more.
-/// Neighbouring segments overlap by at most `stride - ssr` samples at their ends (48 of a window's 4,096 at
-/// 64:64:16), where a window of a late offset runs into the next segment's first.
-pub fn segments(count: usize, offsets: usize) -> Vec<u32> {
-    let offsets = offsets.max(1);
-    let (q, r) = (count / offsets, count % offsets);
-    (0..offsets).flat_map(|o| 0..(q + usize::from(o < r)) as u32).collect()
+/// The time segment of each of a recording's `count` windows of geometry `spec`, listed as [`WindowSpec::windows`]
+/// lists them: the k-th window of every offset ([`WindowSpec::places`]) is segment k, the same stretch of motion
+/// shifted by multiples of the secondary sampling rate. Neighbouring segments overlap by at most `stride - ssr`
+/// samples at their ends (48 of a window's 4,096 at 64:64:16), where a window of a late offset runs into the next
+/// segment's first. Overlapping windows ([`WindowSpec::overlaps`]) chain every window of a recording to the next:
+/// the recording is one segment.
+pub fn segments(count: usize, spec: &WindowSpec) -> Vec<u32> {
+    match spec.overlaps() {
+        true => vec![0; count],
+        false => spec.places(count).into_iter().map(|k| k as u32).collect(),
+    }
 }
 
-/// The origins of windows stored recording by recording with their robot and trajectory, each recording's windows
-/// together as [`crate::window::WindowSpec::windows`] lists them for `offsets` offsets.
-pub fn origins(robots: &[u64], trajectories: &[u32], offsets: usize) -> Vec<Origin> {
-    let mut out = Vec::with_capacity(robots.len());
+/// Windows stored recording by recording with their robot and trajectory, each recording's together: per recording
+/// its robot, trajectory and window count.
+fn recordings(robots: &[u64], trajectories: &[u32]) -> Vec<(u64, u32, usize)> {
+    let mut out = Vec::new();
     let mut first = 0;
     for i in 1..=robots.len() {
-        let ends = i == robots.len() || robots[i] != robots[first] || trajectories[i] != trajectories[first];
-        if ends {
-            let (robot, trajectory) = (robots[first], trajectories[first]);
-            out.extend(segments(i - first, offsets).into_iter().map(|segment| Origin { robot, trajectory, segment }));
+        if i == robots.len() || robots[i] != robots[first] || trajectories[i] != trajectories[first] {
+            out.push((robots[first], trajectories[first], i - first));
             first = i;
         }
     }
     out
+}
+
+/// The origins of windows of geometry `spec` stored recording by recording with their robot and trajectory, each
+/// recording's windows together as [`WindowSpec::windows`] lists them.
+pub fn origins(robots: &[u64], trajectories: &[u32], spec: &WindowSpec) -> Vec<Origin> {
+    recordings(robots, trajectories)
+        .into_iter()
+        .flat_map(|(robot, trajectory, count)| {
+            segments(count, spec).into_iter().map(move |segment| Origin { robot, trajectory, segment })
+        })
+        .collect()
+}
+
+/// Of windows stored as [`origins`] reads them, which are back to back ([`WindowSpec::back_to_back`]).
+pub fn back_to_back(robots: &[u64], trajectories: &[u32], spec: &WindowSpec) -> Vec<bool> {
+    recordings(robots, trajectories).into_iter().flat_map(|(_, _, count)| spec.back_to_back(count)).collect()
 }
 
 #[cfg(test)]
@@ -203,24 +219,34 @@ mod tests {
         for samples in (4000..30_000).step_by(97) {
             let windows = spec.windows(samples);
             let expected: Vec<u32> = windows.iter().map(|w| (w.start / spec.len) as u32).collect();
-            assert_eq!(segments(windows.len(), spec.offsets().count()), expected, "{samples} samples");
+            assert_eq!(segments(windows.len(), &spec), expected, "{samples} samples");
+            // Overlapping windows chain the whole recording into one segment.
+            assert!(segments(spec.with_hop(32).windows(samples).len(), &spec.with_hop(32)).iter().all(|&s| s == 0));
         }
-        let o = origins(&[1, 1, 1, 1, 1, 2], &[0, 0, 0, 1, 1, 1], 2);
+        // Two offsets (stride 2, SSR 1).
+        let o = origins(&[1, 1, 1, 1, 1, 2], &[0, 0, 0, 1, 1, 1], &crate::window::WindowSpec::new(4, 2, 1));
         let s: Vec<u32> = o.iter().map(|o| o.segment).collect();
         assert_eq!(s, [0, 1, 0, 0, 0, 0]);
         assert_eq!(o[4], Origin { robot: 1, trajectory: 1, segment: 0 });
     }
 
     /// Under the split by window, no validation window has a training window of its recording overlapping it by
-    /// more than `stride - ssr` source samples (neighbouring segments' ends), over many seeds; split window by
-    /// window, as before, a window's offset siblings (shifted by 16 ms, 4,080 of 4,096 samples shared) land on both
-    /// sides.
+    /// more than `stride - ssr` source samples (neighbouring segments' ends), over many seeds, and none at all where
+    /// the windows overlap each other (hop 32); split window by window, as before, a window's offset siblings
+    /// (shifted by 16 ms, 4,080 of 4,096 samples shared) land on both sides.
     #[test]
     fn the_split_by_window_keeps_a_windows_shifted_copies_on_its_side() {
-        let spec = crate::window::WindowSpec::default();
+        let back_to_back = crate::window::WindowSpec::default();
+        for (spec, allowed) in [(back_to_back, back_to_back.stride - back_to_back.ssr), (back_to_back.with_hop(32), 0)]
+        {
+            split_by_window_overlaps_at_most(spec, allowed);
+        }
+    }
+
+    fn split_by_window_overlaps_at_most(spec: crate::window::WindowSpec, allowed: usize) {
         let samples = 41_000;
         let windows = spec.windows(samples);
-        let origins = origins(&vec![7; windows.len()], &vec![3; windows.len()], spec.offsets().count());
+        let origins = origins(&vec![7; windows.len()], &vec![3; windows.len()], &spec);
         let overlap = |a: usize, b: usize| {
             let (x, y) = (spec.samples(&windows[a], samples), spec.samples(&windows[b], samples));
             y.end.min(x.end).saturating_sub(y.start.max(x.start))
@@ -241,7 +267,7 @@ mod tests {
                 }
             }
         }
-        assert!(largest <= spec.stride - spec.ssr, "{largest}");
-        assert_eq!(before, spec.len * spec.stride - spec.ssr);
+        assert!(largest <= allowed, "{spec}: {largest}");
+        assert_eq!(before, spec.len * spec.stride - spec.ssr, "{spec}");
     }
 }

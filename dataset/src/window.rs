@@ -1,13 +1,17 @@
 //! Windowing: the paper's downsampling with a stride (its "sampling rate", in 1 kHz samples) and the offset-based
 //! secondary sampler that reuses the samples the stride skips.
 //!
-//! For offset `o` the downsampled series is `x[o], x[o + s], x[o + 2s], ...`; it is cut into consecutive,
-//! non-overlapping windows of `L` samples. The offsets are `0, SSR, 2 SSR, ... < s`, so `ceil(s / SSR)` series are
-//! used out of `s` possible ones: utilisation `1 / SSR` when SSR divides `s` (the paper's best, L = 64, s = 64,
-//! SSR = 16: 4 offsets, 6.25 %, each window spanning 64 x 64 ms = 4.096 s).
+//! For offset `o` the downsampled series is `x[o], x[o + s], x[o + 2s], ...`; it is cut into windows of `L` samples,
+//! one starting every `hop` samples: `hop = L` (the paper's, and the default) puts them back to back. The offsets are
+//! `0, SSR, 2 SSR, ... < s`, so `ceil(s / SSR)` series are used out of `s` possible ones: utilisation `1 / SSR` when
+//! SSR divides `s` (the paper's best, L = 64, s = 64, SSR = 16: 4 offsets, 6.25 %, each window spanning 64 x 64 ms =
+//! 4.096 s).
+//!
+//! Back to back, the windows leave a recording's last partial window unread: 44 % of the motion of the generator's
+//! 7.4 s recordings at 4.096 s windows. A shorter hop reads it, in windows that overlap.
 
 /// Window geometry.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct WindowSpec {
     /// Samples per window (sequence length).
     pub len: usize,
@@ -15,36 +19,50 @@ pub struct WindowSpec {
     pub stride: usize,
     /// Secondary sampling rate: spacing of the offsets.
     pub ssr: usize,
+    /// Downsampled samples from one window's start to the next of the same offset, a divisor of `len`: `len` puts
+    /// them back to back, less overlaps them (and keeps the back-to-back windows among them).
+    pub hop: usize,
 }
 
 impl Default for WindowSpec {
     fn default() -> Self {
-        WindowSpec { len: 64, stride: 64, ssr: 16 }
+        WindowSpec::new(64, 64, 16)
     }
 }
 
-/// A window geometry that is not `LEN:STRIDE:SSR` of three positive numbers.
+/// A window geometry that is not `LEN:STRIDE:SSR[:HOP]` of positive numbers with `HOP` dividing `LEN`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("'{0}': expected three positive numbers LEN:STRIDE:SSR")]
+#[error("'{0}': expected positive numbers LEN:STRIDE:SSR, or LEN:STRIDE:SSR:HOP with HOP dividing LEN")]
 pub struct WindowSpecError(String);
 
-/// `LEN:STRIDE:SSR`, as the command line takes it (`64:64:16`).
+/// `LEN:STRIDE:SSR`, or `LEN:STRIDE:SSR:HOP` for overlapping windows, as the command line takes it (`64:64:16`).
 impl std::str::FromStr for WindowSpec {
     type Err = WindowSpecError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let parts: Vec<usize> =
             s.split(':').map(str::parse).collect::<Result<_, _>>().map_err(|_| WindowSpecError(s.into()))?;
-        match parts[..] {
-            [len, stride, ssr] if len > 0 && stride > 0 && ssr > 0 => Ok(WindowSpec { len, stride, ssr }),
-            _ => Err(WindowSpecError(s.into())),
+        let spec = match parts[..] {
+            [len, stride, ssr] => WindowSpec::new(len, stride, ssr),
+            [len, stride, ssr, hop] => WindowSpec::new(len, stride, ssr).with_hop(hop),
+            _ => return Err(WindowSpecError(s.into())),
+        };
+        match spec.len > 0 && spec.stride > 0 && spec.ssr > 0 && spec.hop > 0 && spec.len.is_multiple_of(spec.hop) {
+            true => Ok(spec),
+            false => Err(WindowSpecError(s.into())),
         }
     }
 }
 
+/// `LEN:STRIDE:SSR`, with `:HOP` where the windows overlap: what cache keys are made of, so a back-to-back
+/// geometry's caches keep their names.
 impl std::fmt::Display for WindowSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}:{}:{}", self.len, self.stride, self.ssr)
+        write!(f, "{}:{}:{}", self.len, self.stride, self.ssr)?;
+        match self.overlaps() {
+            true => write!(f, ":{}", self.hop),
+            false => Ok(()),
+        }
     }
 }
 
@@ -56,6 +74,37 @@ pub struct Window {
 }
 
 impl WindowSpec {
+    /// Back-to-back windows of `len` samples `stride` apart, at offsets `ssr` apart.
+    pub const fn new(len: usize, stride: usize, ssr: usize) -> Self {
+        WindowSpec { len, stride, ssr, hop: len }
+    }
+
+    /// The same windows, one starting every `hop` downsampled samples.
+    pub fn with_hop(self, hop: usize) -> Self {
+        WindowSpec { hop, ..self }
+    }
+
+    /// Whether a window shares samples with the next of its offset.
+    pub fn overlaps(&self) -> bool {
+        self.hop < self.len
+    }
+
+    /// Each of a recording's `count` windows' place among its offset's (0 the first), listed as [`Self::windows`]
+    /// lists them: offset by offset, whose counts differ by at most one and do not rise with the offset, so the first
+    /// `count % offsets` hold one more.
+    pub fn places(&self, count: usize) -> Vec<usize> {
+        let offsets = self.offsets().count().max(1);
+        let (q, r) = (count / offsets, count % offsets);
+        (0..offsets).flat_map(|o| 0..q + usize::from(o < r)).collect()
+    }
+
+    /// Of a recording's `count` windows, which are back to back (all of them unless they overlap): the windows the
+    /// default hop gives, and what `evaluate` scores whatever the hop, so that models trained with different hops
+    /// are scored on the same windows. A hop divides `len`, so they are among the overlapping ones.
+    pub fn back_to_back(&self, count: usize) -> Vec<bool> {
+        self.places(count).into_iter().map(|k| (k * self.hop).is_multiple_of(self.len.max(1))).collect()
+    }
+
     /// The secondary sampler's offsets.
     pub fn offsets(&self) -> impl Iterator<Item = usize> + '_ {
         (0..self.stride).step_by(self.ssr.max(1))
@@ -71,15 +120,18 @@ impl WindowSpec {
         (self.len * self.stride) as f64 * dt
     }
 
-    /// Every window of a recording of `samples` source samples.
+    /// Every window of a recording of `samples` source samples: offset by offset, each offset's in time order.
     pub fn windows(&self, samples: usize) -> Vec<Window> {
+        let hop = self.hop.max(1);
         let mut out = Vec::new();
         for offset in self.offsets() {
             if offset >= samples {
                 continue;
             }
             let downsampled = (samples - 1 - offset) / self.stride + 1;
-            out.extend((0..downsampled / self.len).map(|w| Window { offset, start: w * self.len }));
+            if let Some(room) = downsampled.checked_sub(self.len) {
+                out.extend((0..=room / hop).map(|w| Window { offset, start: w * hop }));
+            }
         }
         out
     }
@@ -134,14 +186,14 @@ mod tests {
         assert_eq!(spec.windows(64 * 63 + 1), vec![Window { offset: 0, start: 0 }]);
         assert!(spec.windows(64 * 63).is_empty());
         // SSR that does not divide the stride: offsets 0, 24, 48 -> ceil(64 / 24) = 3.
-        assert_eq!(WindowSpec { len: 8, stride: 64, ssr: 24 }.offsets().count(), 3);
+        assert_eq!(WindowSpec::new(8, 64, 24).offsets().count(), 3);
         // Spans: 4,096 samples from the window's first index, on 16-sample blocks.
         assert_eq!(spec.block(), 16);
         assert_eq!(spec.samples(&w[1], 10_000), 4096..8192);
         assert_eq!(spec.samples(&w[2], 10_000), 16..4112);
         assert_eq!(spec.samples(&Window { offset: 48, start: 64 }, 10_000), 4144..8240);
         assert_eq!(spec.samples(&Window { offset: 0, start: 0 }, 4000), 0..4000);
-        assert_eq!(WindowSpec { len: 8, stride: 64, ssr: 24 }.block(), 8);
+        assert_eq!(WindowSpec::new(8, 64, 24).block(), 8);
         for win in &w {
             let span = spec.samples(win, 10_000);
             assert!(spec.indices(win).all(|i| span.contains(&i)));
@@ -150,8 +202,36 @@ mod tests {
     }
 
     #[test]
+    fn a_shorter_hop_reads_the_motion_back_to_back_windows_leave() {
+        // 7,400 samples (a generated recording's 7.4 s): 115 or 116 downsampled samples per offset, so one
+        // back-to-back window of 64 per offset (4,096 of the 7,400 samples from offset 0), two at hop 32, four at 16.
+        let spec = WindowSpec::default();
+        let samples = 7_400;
+        for (hop, per_offset, reach) in [(64, 1, 4096), (32, 2, 6144), (16, 4, 7168)] {
+            let s = spec.with_hop(hop);
+            let w = s.windows(samples);
+            assert_eq!(w.len(), 4 * per_offset, "hop {hop}");
+            assert!(w.iter().all(|w| w.start % hop == 0 && s.samples(w, samples).len() == 4096), "hop {hop}");
+            let end = w.iter().filter(|w| w.offset == 0).map(|w| s.samples(w, samples).end).max();
+            assert_eq!(end, Some(reach), "hop {hop}");
+            assert_eq!(s.overlaps(), hop < 64);
+            // The back-to-back windows are among them, and are what hop 64 gives.
+            let kept: Vec<Window> = w.iter().zip(s.back_to_back(w.len())).filter(|p| p.1).map(|p| *p.0).collect();
+            assert_eq!(kept, spec.windows(samples), "hop {hop}");
+        }
+        // Parsed and printed: a back-to-back geometry prints as it always has (cache names are made of it).
+        assert_eq!("64:64:16".parse::<WindowSpec>(), Ok(spec));
+        assert_eq!("64:64:16:32".parse::<WindowSpec>(), Ok(spec.with_hop(32)));
+        assert_eq!(spec.with_hop(32).to_string(), "64:64:16:32");
+        assert_eq!(spec.with_hop(64).to_string(), "64:64:16");
+        for bad in ["64:64:16:0", "64:64:16:65", "64:64:16:24", "64:64", "64:64:16:8:1", "0:64:16", "64:x:16"] {
+            assert!(bad.parse::<WindowSpec>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
     fn windows_of_one_offset_do_not_overlap_and_offsets_interleave() {
-        let spec = WindowSpec { len: 4, stride: 8, ssr: 2 };
+        let spec = WindowSpec::new(4, 8, 2);
         let w = spec.windows(200);
         let mut seen = std::collections::HashSet::new();
         for win in &w {

@@ -49,7 +49,7 @@ pub struct Stats {
     pub robots: usize,
     pub hours: f64,
     /// Windows per window geometry.
-    pub windows: BTreeMap<(usize, usize, usize), usize>,
+    pub windows: BTreeMap<WindowSpec, usize>,
     /// Per label: (min, max).
     pub label_ranges: Vec<(f64, f64)>,
     /// Files that could not be read, with the reason.
@@ -67,13 +67,14 @@ impl Stats {
         for spec in specs {
             let _ = writeln!(
                 out,
-                "  {:>3} x {:>3}, ssr {:>3}: {:>6.3} s, {:>5.2} %, {}",
+                "  {:>3} x {:>3}, ssr {:>3}{}: {:>6.3} s, {:>5.2} %, {}",
                 spec.len,
                 spec.stride,
                 spec.ssr,
+                if spec.overlaps() { format!(", hop {}", spec.hop) } else { String::new() },
                 spec.span(GRID_DT),
                 100.0 * spec.utilisation(),
-                self.windows.get(&(spec.len, spec.stride, spec.ssr)).copied().unwrap_or(0)
+                self.windows.get(spec).copied().unwrap_or(0)
             );
         }
         if self.shards > 0 {
@@ -88,11 +89,11 @@ impl Stats {
 
 /// The window geometries `dataset stats` counts by default: the paper's grid around its best (64:64:16).
 pub const AROUND_THE_BEST: [WindowSpec; 5] = [
-    WindowSpec { len: 32, stride: 64, ssr: 16 },
-    WindowSpec { len: 64, stride: 32, ssr: 16 },
-    WindowSpec { len: 64, stride: 64, ssr: 16 },
-    WindowSpec { len: 64, stride: 64, ssr: 8 },
-    WindowSpec { len: 128, stride: 64, ssr: 16 },
+    WindowSpec::new(32, 64, 16),
+    WindowSpec::new(64, 32, 16),
+    WindowSpec::new(64, 64, 16),
+    WindowSpec::new(64, 64, 8),
+    WindowSpec::new(128, 64, 16),
 ];
 
 /// Statistics of every `*.mcap` in `dir` (a run directory's `shards/` or any folder of shards).
@@ -123,7 +124,7 @@ pub fn stats(dir: &Path, specs: &[WindowSpec]) -> Result<Stats, ReadError> {
             robots.insert(r);
         }
         for spec in specs {
-            *s.windows.entry((spec.len, spec.stride, spec.ssr)).or_default() += spec.windows(p.trajectory.len()).len();
+            *s.windows.entry(*spec).or_default() += spec.windows(p.trajectory.len()).len();
         }
         if let Some(y) = p.labels {
             for (range, v) in s.label_ranges.iter_mut().zip(y) {

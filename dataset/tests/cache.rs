@@ -68,7 +68,7 @@ fn cache_hits_misses_and_rebuilds() {
     assert!(!CachedWindows::load_or_build(dir.path(), &spec, &features, |_, _| true).unwrap().0.hit);
 
     // Another geometry misses.
-    let other = WindowSpec { len: 32, stride: 64, ssr: 16 };
+    let other = WindowSpec::new(32, 64, 16);
     let (w, _) = CachedWindows::load_or_build(dir.path(), &other, &features, |_, _| true).unwrap();
     assert!(!w.hit && w.count() > built.count());
 

@@ -42,11 +42,15 @@ fn a_shard_becomes_windows_of_state_torque_and_jacobian_features() {
     features.evaluate(&p.model, &mut Data::new(&p.model), &m.position, &mut jac);
     assert_eq!(&row[18..], jac.iter().map(|v| *v as f32).collect::<Vec<_>>().as_slice());
 
-    let s = stats(dir.path(), &[spec, WindowSpec { len: 32, stride: 32, ssr: 8 }]).unwrap();
+    let (other, overlapping) = (WindowSpec::new(32, 32, 8), spec.with_hop(spec.len / 2));
+    let s = stats(dir.path(), &[spec, other, overlapping]).unwrap();
     assert_eq!((s.shards, s.robots), (1, 1));
     assert!((s.hours - p.trajectory.len() as f64 / 3.6e6).abs() < 1e-12);
-    assert_eq!(s.windows[&(64, 64, 16)], count);
-    assert_eq!(s.windows[&(32, 32, 8)], WindowSpec { len: 32, stride: 32, ssr: 8 }.windows(p.trajectory.len()).len());
+    assert_eq!(s.windows[&spec], count);
+    assert_eq!(s.windows[&other], other.windows(p.trajectory.len()).len());
+    // Counted apart from the back-to-back windows of the same length, stride and SSR.
+    assert_eq!(s.windows[&overlapping], overlapping.windows(p.trajectory.len()).len());
+    assert!(s.windows[&overlapping] >= count);
     assert_eq!(s.label_ranges[12], (p.labels.unwrap()[12], p.labels.unwrap()[12]));
 
     // A corrupt file among the shards is skipped with its name, not fatal.

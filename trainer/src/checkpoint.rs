@@ -119,6 +119,9 @@ pub struct Checkpoint {
     pub model: NetworkConfig,
     /// The window geometry: the transformer's input; the physics estimator's unit of the paper's protocol.
     pub window: [usize; 3],
+    /// Where the windows overlap, the hop between their starts (`WindowSpec::hop`); absent: back to back.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_hop: Option<usize>,
     /// Joint names of the robots trained on, in model order (a recording's joints are matched by these names).
     pub joints: Vec<String>,
     /// The family's kinematic chain (every robot of a generator shares it): a robot of another family is refused.
@@ -185,6 +188,7 @@ impl Checkpoint {
             format: FORMAT.into(),
             model,
             window: [spec.len, spec.stride, spec.ssr],
+            window_hop: spec.overlaps().then_some(spec.hop),
             joints: robot.joints().iter().map(|j| j.name.clone()).collect(),
             kinematics: JointFrame::chain(robot),
             features: features.map_or(Vec::new(), |f| f.entries.iter().map(|e| e.name.clone()).collect()),
@@ -216,7 +220,8 @@ impl Checkpoint {
     }
 
     pub fn window_spec(&self) -> WindowSpec {
-        WindowSpec { len: self.window[0], stride: self.window[1], ssr: self.window[2] }
+        let spec = WindowSpec::new(self.window[0], self.window[1], self.window[2]);
+        spec.with_hop(self.window_hop.unwrap_or(spec.len))
     }
 
     pub fn standardizer(&self) -> Standardizer {
@@ -314,6 +319,12 @@ impl Checkpoint {
         };
         if !(inputs && c.columns.len() == c.mean.len() && c.columns.len() == c.std.len()) {
             return Err(file_error(&path, "inconsistent columns, statistics, prior and model inputs"));
+        }
+        if c.window.contains(&0) || c.window_hop.is_some_and(|h| h == 0 || !c.window[0].is_multiple_of(h)) {
+            return Err(file_error(
+                &path,
+                format!("window {:?} hop {:?}: not a window geometry", c.window, c.window_hop),
+            ));
         }
         c.model.check()?;
         Ok(c)

@@ -35,7 +35,7 @@ impl Sweep<'_> {
         let (mut dataset, mut arch) = (Vec::new(), Vec::new());
         if self.grid != Grid::Architecture {
             for (len, stride, ssr, paper) in DATASET_GRID {
-                let recipe = Recipe { window: WindowSpec { len, stride, ssr }, ..self.base.clone() };
+                let recipe = Recipe { window: WindowSpec::new(len, stride, ssr), ..self.base.clone() };
                 dataset.push(self.one(&format!("dataset-L{len}-s{stride}-r{ssr}"), recipe, (paper, None), observer)?);
                 self.write(&dataset, &arch)?;
             }

@@ -35,7 +35,7 @@ fn corpus(n: usize, seed: u64) -> Corpus {
         data.extend(w);
     }
     let windows = CachedWindows {
-        spec: WindowSpec { len: LEN, stride: 1, ssr: 1 },
+        spec: WindowSpec::new(LEN, 1, 1),
         width: WIDTH,
         data,
         labels,
@@ -280,7 +280,7 @@ fn following_a_growing_dataset_adds_new_shards_between_epochs_and_skips_broken_o
     let robot = dynforge_robot::generator::generate(&Default::default(), 2, 0).unwrap().model;
     let features = JacobianFeatures::new(&robot);
     let empty = CachedWindows {
-        spec: WindowSpec { len: 8, stride: 64, ssr: 16 },
+        spec: WindowSpec::new(8, 64, 16),
         width: 0,
         data: vec![],
         labels: vec![],

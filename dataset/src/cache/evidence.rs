@@ -13,7 +13,7 @@ use super::codec::{Decoder, Encoder};
 use super::partitions::PartitionsError;
 use super::{CacheError, CacheKey, Cached, Loaded, Skipped, Stored};
 use crate::evidence::{NOISE_FLOOR, recording_evidence};
-use crate::split::{HoldOut, Origin, Split, SplitRule, origins};
+use crate::split::{HoldOut, Origin, Split, SplitRule, back_to_back, origins};
 use crate::window::WindowSpec;
 
 /// Pieces of evidence with their robot and labels, stored flat.
@@ -78,7 +78,13 @@ impl EvidenceList {
     /// Where each piece comes from, for a list of windows of `spec` (stored recording by recording, each
     /// recording's as [`WindowSpec::windows`] lists them).
     pub fn origins(&self, spec: &WindowSpec) -> Vec<Origin> {
-        origins(&self.robots, &self.trajectories, spec.offsets().count())
+        origins(&self.robots, &self.trajectories, spec)
+    }
+
+    /// Which pieces of a list of windows of `spec` (stored as for [`Self::origins`]) are back to back
+    /// ([`WindowSpec::back_to_back`]).
+    pub fn back_to_back(&self, spec: &WindowSpec) -> Vec<bool> {
+        back_to_back(&self.robots, &self.trajectories, spec)
     }
 
     /// Evidence summed per robot over the pieces `keep` accepts (by index): (robot, labels, evidence).
@@ -221,16 +227,7 @@ impl Cached for PhysicsSet {
     /// The window geometry, the noise model and the prior.
     fn key(s: &EvidenceSettings) -> CacheKey {
         let (spec, prior) = (&s.spec, &s.prior);
-        let mut m = format!(
-            "physics|{}:{}:{}|{}|{}|{}|",
-            spec.len,
-            spec.stride,
-            spec.ssr,
-            NOISE_FLOOR,
-            prior.rank(),
-            PAIRING_REVISION
-        )
-        .into_bytes();
+        let mut m = format!("physics|{spec}|{}|{}|{}|", NOISE_FLOOR, prior.rank(), PAIRING_REVISION).into_bytes();
         for v in prior.mean().iter().chain(prior.factor()) {
             m.extend(v.to_le_bytes());
         }
@@ -240,6 +237,10 @@ impl Cached for PhysicsSet {
 
     fn empty(s: &EvidenceSettings) -> Self {
         PhysicsSet::new(s.spec, s.prior.rank())
+    }
+
+    fn restore(&mut self, s: &EvidenceSettings) {
+        self.spec = s.spec;
     }
 
     fn read_shard(path: &Path, bytes: &[u8], s: &EvidenceSettings) -> Result<RecordingEvidence, Skipped> {
@@ -265,7 +266,7 @@ impl Cached for PhysicsSet {
 
     fn decode<R: Read>(input: R, len: u64) -> Option<Self> {
         let mut d = Decoder::open(input, len, MAGIC)?;
-        let spec = WindowSpec { len: d.usize()?, stride: d.usize()?, ssr: d.usize()? };
+        let spec = WindowSpec::new(d.usize()?, d.usize()?, d.usize()?);
         let rank = d.usize()?;
         let windows = EvidenceList::decode(&mut d, rank)?;
         let recordings = EvidenceList::decode(&mut d, rank)?;

@@ -93,6 +93,9 @@ pub trait Cached: Sized {
     /// The preprocessing half of the file name.
     fn key(settings: &Self::Settings) -> CacheKey;
     fn empty(settings: &Self::Settings) -> Self;
+    /// What a cache read back from its file takes from the settings its name was made of and its file does not hold:
+    /// the windows' hop (the name says it; the header keeps the layout caches had before windows could overlap).
+    fn restore(&mut self, settings: &Self::Settings);
     /// One shard's contribution, from the file's `bytes` (read and checked by the caller).
     fn read_shard(path: &Path, bytes: &[u8], settings: &Self::Settings) -> Result<Self::Shard, Skipped>;
     fn append(&mut self, path: &Path, shard: Self::Shard) -> Result<Self::Added, Skipped>;
@@ -197,9 +200,10 @@ pub fn load_or_build<C: Cached>(
     };
     let list = dir.join(PRUNED);
     let pruned = read_pruned(dir).map_err(io(&list))?;
-    if let Some((cache, held)) = read_file::<C>(&path) {
+    if let Some((mut cache, held)) = read_file::<C>(&path) {
         // A file from before caches recorded their shards is read only where nothing else is left.
         if held.is_some() || !pruned.is_empty() {
+            cache.restore(settings);
             return Ok(Loaded { cache, hit: true, held, skipped: Vec::new(), unwritten: None });
         }
     }

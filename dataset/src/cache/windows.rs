@@ -12,7 +12,7 @@ use super::codec::{Decoder, Encoder};
 use super::partitions::PartitionsError;
 use super::{CacheError, CacheKey, Cached, CombineError, Loaded, Skipped, Stored};
 use crate::features::JacobianFeatures;
-use crate::split::{Origin, origins};
+use crate::split::{Origin, back_to_back, origins};
 use crate::window::WindowSpec;
 use crate::windows::{row_width, windows};
 
@@ -66,7 +66,12 @@ impl CachedWindows {
 
     /// Where each window comes from.
     pub fn origins(&self) -> Vec<Origin> {
-        origins(&self.robots, &self.trajectories, self.spec.offsets().count())
+        origins(&self.robots, &self.trajectories, &self.spec)
+    }
+
+    /// Which windows are back to back ([`WindowSpec::back_to_back`]).
+    pub fn back_to_back(&self) -> Vec<bool> {
+        back_to_back(&self.robots, &self.trajectories, &self.spec)
     }
 
     pub fn count(&self) -> usize {
@@ -122,7 +127,7 @@ impl Cached for CachedWindows {
 
     fn key(s: &WindowSettings) -> CacheKey {
         let spec = &s.spec;
-        let mut material = format!("|{}:{}:{}|{}|", spec.len, spec.stride, spec.ssr, GRID_DT).into_bytes();
+        let mut material = format!("|{spec}|{GRID_DT}|").into_bytes();
         for e in &s.features.entries {
             material.extend(e.name.bytes());
         }
@@ -132,6 +137,10 @@ impl Cached for CachedWindows {
 
     fn empty(s: &WindowSettings) -> Self {
         CachedWindows::new(s.spec)
+    }
+
+    fn restore(&mut self, s: &WindowSettings) {
+        self.spec = s.spec;
     }
 
     fn read_shard(path: &Path, bytes: &[u8], s: &WindowSettings) -> Result<ShardWindows, Skipped> {
@@ -243,7 +252,7 @@ impl Head {
 
     fn read<R: Read>(d: &mut Decoder<R>) -> Option<Head> {
         let (len, stride, ssr, width, count) = (d.usize()?, d.usize()?, d.usize()?, d.usize()?, d.usize()?);
-        Some(Head { spec: WindowSpec { len, stride, ssr }, width, count })
+        Some(Head { spec: WindowSpec::new(len, stride, ssr), width, count })
     }
 
     /// The values of all windows.

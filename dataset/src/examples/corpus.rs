@@ -32,8 +32,7 @@ impl Corpus {
             match added {
                 // A shard is one recording: its windows are listed as `WindowSpec::windows` lists them.
                 Ok((robot, new)) => {
-                    let offsets = self.windows.spec.offsets().count();
-                    for (segment, i) in segments(new.len(), offsets).into_iter().zip(new) {
+                    for (segment, i) in segments(new.len(), &self.windows.spec).into_iter().zip(new) {
                         let trajectory = self.windows.trajectories[i];
                         match rule.side(Origin { robot, trajectory, segment }) {
                             Split::Train => self.train.push(i),

@@ -112,10 +112,11 @@ fn load_inputs(
     })
 }
 
-/// The validation windows' predictions, and per robot the mean over its validation windows.
+/// The validation windows' predictions, and per robot the mean over its validation windows. Only back-to-back windows
+/// are scored, whatever hop the model trained with: the same windows for every model.
 fn validate_windows(predictor: &Predictor, w: CachedWindows, rule: &SplitRule) -> Validation {
-    let origins = w.origins();
-    let ids: Vec<usize> = (0..w.count()).filter(|&i| rule.side(origins[i]) == Split::Validation).collect();
+    let (origins, scored) = (w.origins(), w.back_to_back());
+    let ids: Vec<usize> = (0..w.count()).filter(|&i| scored[i] && rule.side(origins[i]) == Split::Validation).collect();
     let standardizer = predictor.checkpoint.standardizer();
     let corpus = Corpus { windows: w, train: Vec::new(), validation: ids, standardizer };
     let truth = corpus.validation_labels();
@@ -138,7 +139,8 @@ fn validate_physics(predictor: &Predictor, set: &PhysicsSet, rule: &SplitRule) -
     let (window_sides, recording_sides) = set.sides(rule);
     let validation = |i: usize| recording_sides[i] == Split::Validation;
     let w = &set.windows;
-    let ids: Vec<usize> = (0..w.len()).filter(|&i| window_sides[i] == Split::Validation).collect();
+    let scored = w.back_to_back(&set.spec);
+    let ids: Vec<usize> = (0..w.len()).filter(|&i| scored[i] && window_sides[i] == Split::Validation).collect();
     let window_predicted = predictor.predict_evidence(&ids.iter().map(|&i| w.get(i)).collect::<Vec<_>>())?;
     let robots = set.recordings.per_robot(validation);
     let robot_predicted = predictor.predict_evidence(&robots.iter().map(|(_, _, e)| e.clone()).collect::<Vec<_>>())?;
