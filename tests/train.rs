@@ -597,6 +597,17 @@ fn the_split_holds_out_robots_trajectories_or_windows_as_asked() {
             serde_json::from_slice(&std::fs::read(run.join("checkpoint.json")).unwrap()).unwrap();
         assert_eq!(ck["held_out"], by.name());
         assert_eq!(ck["window_hop"], hop.map_or(serde_json::Value::Null, |h| h.into()));
+        if hop.is_some() {
+            // A hop that does not divide the window's length is refused, naming the file.
+            let bad = dir.path().join("bad-hop");
+            std::fs::create_dir_all(&bad).unwrap();
+            let mut edited = ck.clone();
+            edited["window_hop"] = 24.into();
+            std::fs::write(bad.join("checkpoint.json"), edited.to_string()).unwrap();
+            let o = dynforge(&["evaluate", bad.to_str().unwrap()]);
+            let e = stderr(&o);
+            assert!(!o.status.success() && e.contains("checkpoint.json") && e.contains("hop 24"), "{e}");
+        }
         let flags = ["--torque-recordings", "2", "--identify-robots", "1", "--spread-robots", "0"];
         evaluate(&run, &flags);
         let report: serde_json::Value =

@@ -320,11 +320,12 @@ impl Checkpoint {
         if !(inputs && c.columns.len() == c.mean.len() && c.columns.len() == c.std.len()) {
             return Err(file_error(&path, "inconsistent columns, statistics, prior and model inputs"));
         }
-        if c.window.contains(&0) || c.window_hop.is_some_and(|h| h == 0 || !c.window[0].is_multiple_of(h)) {
-            return Err(file_error(
-                &path,
-                format!("window {:?} hop {:?}: not a window geometry", c.window, c.window_hop),
-            ));
+        let hop = c.window_hop.unwrap_or(c.window[0]);
+        if c.window.contains(&0) || hop == 0 || !c.window[0].is_multiple_of(hop) {
+            let [len, stride, ssr] = c.window;
+            let problem =
+                format!("window {len}:{stride}:{ssr} with hop {hop}: not positive, or the hop does not divide {len}");
+            return Err(file_error(&path, problem));
         }
         c.model.check()?;
         Ok(c)
