@@ -189,9 +189,9 @@ pub struct RecipeFlags {
     /// Secondary sampling rate: window offsets 0, SSR, 2 SSR, ... below the stride.
     #[arg(long, default_value_t = 16, value_parser = whole::<usize>(1, 1 << 20))]
     pub ssr: usize,
-    /// Time steps from one window's start to the next, at most --len: less overlaps them and reads the motion the
-    /// last back-to-back window of a recording leaves (half the window: 1.6x the windows of 7.4 s recordings)
-    /// [default: --len, back to back].
+    /// Time steps from one window's start to the next, a divisor of --len: less than --len overlaps them and reads
+    /// the motion the last back-to-back window of a recording leaves (half the window: 1.6x the windows of 7.4 s
+    /// recordings); `evaluate` still scores back-to-back windows [default: --len, back to back].
     #[arg(long, value_parser = whole::<usize>(1, 1 << 20))]
     pub hop: Option<usize>,
     /// Maximum epochs [default: 30; pipeline: 12 (transformer)].
