@@ -1,12 +1,12 @@
 //! Data pipeline throughput: windows per second from the shards (cold: read, decode, resample, Jacobian features,
 //! window) and from the cache, for a `generate` directory.
 //!
-//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR=64:64:16]. Compare with the windows/s the model consumes in
+//! Usage: dynforge-bench-data DIR [LEN:STRIDE:SSR[:HOP]=64:64:16]. Compare with the windows/s the model consumes in
 //! training (bench/training.sh; figures in `docs/measurements.md`).
 
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use dynforge_dataset::cache::windows::{CachedWindows, cache_path};
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::window::WindowSpec;
@@ -14,15 +14,9 @@ use dynforge_robot::urdf;
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
-    let dir = std::path::PathBuf::from(args.next().context("usage: dynforge-bench-data DIR [LEN:STRIDE:SSR]")?);
-    let spec = match args.next() {
-        Some(s) => {
-            let p: Vec<usize> = s.split(':').map(str::parse).collect::<Result<_, _>>().context("LEN:STRIDE:SSR")?;
-            if p.len() != 3 {
-                bail!("LEN:STRIDE:SSR");
-            }
-            WindowSpec::new(p[0], p[1], p[2])
-        }
+    let dir = std::path::PathBuf::from(args.next().context("usage: dynforge-bench-data DIR [LEN:STRIDE:SSR[:HOP]]")?);
+    let spec: WindowSpec = match args.next() {
+        Some(s) => s.parse()?,
         None => WindowSpec::default(),
     };
     let first = std::fs::read_dir(dir.join("shards"))?

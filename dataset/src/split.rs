@@ -215,7 +215,7 @@ mod tests {
     /// origins restart them at each recording.
     #[test]
     fn segments_are_the_windows_places_in_time() {
-        let spec = crate::window::WindowSpec::default();
+        let spec = WindowSpec::default();
         for samples in (4000..30_000).step_by(97) {
             let windows = spec.windows(samples);
             let expected: Vec<u32> = windows.iter().map(|w| (w.start / spec.len) as u32).collect();
@@ -224,7 +224,7 @@ mod tests {
             assert!(segments(spec.with_hop(32).windows(samples).len(), &spec.with_hop(32)).iter().all(|&s| s == 0));
         }
         // Two offsets (stride 2, SSR 1).
-        let o = origins(&[1, 1, 1, 1, 1, 2], &[0, 0, 0, 1, 1, 1], &crate::window::WindowSpec::new(4, 2, 1));
+        let o = origins(&[1, 1, 1, 1, 1, 2], &[0, 0, 0, 1, 1, 1], &WindowSpec::new(4, 2, 1));
         let s: Vec<u32> = o.iter().map(|o| o.segment).collect();
         assert_eq!(s, [0, 1, 0, 0, 0, 0]);
         assert_eq!(o[4], Origin { robot: 1, trajectory: 1, segment: 0 });
@@ -236,14 +236,14 @@ mod tests {
     /// (shifted by 16 ms, 4,080 of 4,096 samples shared) land on both sides.
     #[test]
     fn the_split_by_window_keeps_a_windows_shifted_copies_on_its_side() {
-        let back_to_back = crate::window::WindowSpec::default();
+        let back_to_back = WindowSpec::default();
         for (spec, allowed) in [(back_to_back, back_to_back.stride - back_to_back.ssr), (back_to_back.with_hop(32), 0)]
         {
             split_by_window_overlaps_at_most(spec, allowed);
         }
     }
 
-    fn split_by_window_overlaps_at_most(spec: crate::window::WindowSpec, allowed: usize) {
+    fn split_by_window_overlaps_at_most(spec: WindowSpec, allowed: usize) {
         let samples = 41_000;
         let windows = spec.windows(samples);
         let origins = origins(&vec![7; windows.len()], &vec![3; windows.len()], &spec);

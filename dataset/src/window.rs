@@ -47,7 +47,7 @@ impl std::str::FromStr for WindowSpec {
             [len, stride, ssr, hop] => WindowSpec::new(len, stride, ssr).with_hop(hop),
             _ => return Err(WindowSpecError(s.into())),
         };
-        match spec.len > 0 && spec.stride > 0 && spec.ssr > 0 && spec.hop > 0 && spec.len.is_multiple_of(spec.hop) {
+        match spec.is_valid() {
             true => Ok(spec),
             false => Err(WindowSpecError(s.into())),
         }
@@ -82,6 +82,12 @@ impl WindowSpec {
     /// The same windows, one starting every `hop` downsampled samples.
     pub fn with_hop(self, hop: usize) -> Self {
         WindowSpec { hop, ..self }
+    }
+
+    /// Whether every size is positive and the hop divides the length (so the back-to-back windows are among the
+    /// overlapping ones).
+    pub fn is_valid(&self) -> bool {
+        self.len > 0 && self.stride > 0 && self.ssr > 0 && self.hop > 0 && self.len.is_multiple_of(self.hop)
     }
 
     /// Whether a window shares samples with the next of its offset.

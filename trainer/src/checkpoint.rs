@@ -320,11 +320,12 @@ impl Checkpoint {
         if !(inputs && c.columns.len() == c.mean.len() && c.columns.len() == c.std.len()) {
             return Err(file_error(&path, "inconsistent columns, statistics, prior and model inputs"));
         }
-        let hop = c.window_hop.unwrap_or(c.window[0]);
-        if c.window.contains(&0) || hop == 0 || !c.window[0].is_multiple_of(hop) {
-            let [len, stride, ssr] = c.window;
-            let problem =
-                format!("window {len}:{stride}:{ssr} with hop {hop}: not positive, or the hop does not divide {len}");
+        let spec = c.window_spec();
+        if !spec.is_valid() {
+            let problem = format!(
+                "window {}:{}:{} with hop {}: not positive, or the hop does not divide {}",
+                spec.len, spec.stride, spec.ssr, spec.hop, spec.len
+            );
             return Err(file_error(&path, problem));
         }
         c.model.check()?;

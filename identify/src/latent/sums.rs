@@ -210,10 +210,11 @@ pub fn batch_scatter(batches: &[LatentSums], floor: f64, variance: &[f64]) -> Re
     let r = first.rank;
     let total = LatentSums::sum(first.joints.len(), r, batches);
     let e = total.evidence_with_noise(floor, variance);
-    let z = DVector::from_vec(e.posterior()?.mean);
     let weights = total.weights(floor, variance);
-    let p = DMatrix::identity(r, r) + Evidence::unpack(r, &e.h);
-    let p_inv = p.cholesky().ok_or(IdentifyError::Decomposition)?.inverse();
+    // The posterior's mean and `P^-1` from one factorization, as `Evidence::posterior` computes them.
+    let p = (DMatrix::identity(r, r) + Evidence::unpack(r, &e.h)).cholesky().ok_or(IdentifyError::Decomposition)?;
+    let z = p.solve(&DVector::from_column_slice(&e.b));
+    let p_inv = p.inverse();
     let mut scatter = BatchScatter::default();
     for batch in batches {
         let mut h = DMatrix::zeros(r, r);

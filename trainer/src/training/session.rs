@@ -116,7 +116,7 @@ impl Session<'_> {
         if r.window.len == 0 || r.window.stride == 0 || r.window.ssr == 0 {
             return Err(SessionError::Setup("--len, --stride and --ssr must be positive".into()));
         }
-        if r.window.hop == 0 || !r.window.len.is_multiple_of(r.window.hop) {
+        if !r.window.is_valid() {
             return Err(SessionError::Setup(format!("--hop {} must divide --len {}", r.window.hop, r.window.len)));
         }
         if let Some(m) = dynforge_proto::manifest::Manifest::load(self.data).map_err(ReadError::from)?
