@@ -4,7 +4,7 @@
 //! through the labels' own map, which is not linear (a centre of mass is a first moment over a mass; a moment about
 //! it subtracts `m c^2`), so a label can sit further from its plug-in than the linear pull says.
 //!
-//! Usage: dynforge-bench-prior-pull CHECKPOINT DATA [--robot ID] [--tails N]
+//! Usage: dynforge-bench-prior-pull CHECKPOINT DATA [--robot ID] | CHECKPOINT --tails N
 //!
 //! Per robot (its first log): the truth's mean square and largest coordinate, how far the posterior mean lies from
 //! `z - P^-1 z` (the largest over coordinates, in posterior standard deviations), and the label whose plug-in lies
@@ -15,37 +15,11 @@
 //! variance, excess kurtosis and fractions beyond 3 and 4: how Gaussian the family the prior stands for is.
 
 use anyhow::{Context, Result, bail};
-use dynforge_identify::{ParameterPrior, labels_of_parameters};
+use dynforge_dataset::evidence::{label_gradient, label_posterior};
+use dynforge_identify::{ParameterPrior, Posterior};
 use dynforge_proto::{LABELS, NUM_LABELS};
 use dynforge_trainer::inference::Predictor;
-
-/// A posterior's covariance applied to vectors of its coordinates.
-struct Covariance(Vec<Vec<f64>>);
-
-impl Covariance {
-    fn apply(&self, v: &[f64]) -> Vec<f64> {
-        self.0.iter().map(|row| row.iter().zip(v).map(|(a, b)| a * b).sum()).collect()
-    }
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// The gradient of label `k` in the prior's coordinates at `z`, by central differences.
-fn gradient(prior: &ParameterPrior, z: &[f64], k: usize) -> Vec<f64> {
-    let h = 1e-5;
-    (0..z.len())
-        .map(|i| {
-            let at = |d: f64| {
-                let mut zz = z.to_vec();
-                zz[i] += d;
-                labels_of_parameters(&prior.parameters(&zz))[k]
-            };
-            (at(h) - at(-h)) / (2.0 * h)
-        })
-        .collect()
-}
+use nalgebra::DVector;
 
 /// One label of one robot: the plug-in's error, the linear pull, the posterior's spread and the pull's spread.
 struct Pull {
@@ -55,18 +29,19 @@ struct Pull {
     spread: f64,
 }
 
-fn pulls(prior: &ParameterPrior, mean: &[f64], cov: &Covariance, z: &[f64], truth: &[f64; NUM_LABELS]) -> Vec<Pull> {
-    let plug = labels_of_parameters(&prior.parameters(mean));
-    let pull = cov.apply(z);
+/// Each label's [`Pull`] for the truth at coordinates `z` (`pull`: `P^-1 z`).
+fn pulls(prior: &ParameterPrior, post: &Posterior, pull: &DVector<f64>, truth: &[f64; NUM_LABELS]) -> Vec<Pull> {
+    let (plug, posterior) = label_posterior(prior, post);
+    let grad = label_gradient(prior, &post.mean);
+    let cov = post.covariance();
     (0..NUM_LABELS)
         .map(|k| {
-            let g = gradient(prior, mean, k);
-            let pg = cov.apply(&g);
+            let g = DVector::from_iterator(grad.len(), grad.iter().map(|row| row[k]));
             Pull {
                 error: plug[k] - truth[k],
-                linear: -dot(&g, &pull),
-                posterior: dot(&g, &pg).max(0.0).sqrt(),
-                spread: dot(&pg, &pg).sqrt(),
+                linear: -g.dot(pull),
+                posterior: posterior[k],
+                spread: (&cov * &g).norm(),
             }
         })
         .collect()
@@ -104,37 +79,41 @@ fn main() -> Result<()> {
             _ => positional.push(a),
         }
     }
-    let [ckpt, data] = positional.as_slice() else { bail!("usage: dynforge-bench-prior-pull CHECKPOINT DATA") };
+    let (ckpt, data) = match positional.as_slice() {
+        [ckpt] if draws.is_some() => (ckpt, None),
+        [ckpt, data] => (ckpt, Some(data)),
+        _ => bail!("usage: dynforge-bench-prior-pull CHECKPOINT DATA [--robot ID] | CHECKPOINT --tails N"),
+    };
     let predictor = Predictor::load(std::path::Path::new(ckpt))?;
     let prior = predictor.checkpoint.parameter_prior().context("not a physics checkpoint: it has no prior")?;
-    if let Some(n) = draws {
-        return tails(&prior, n);
-    }
+    let (Some(data), None) = (data, draws) else { return tails(&prior, draws.unwrap_or_default()) };
     let r = prior.rank();
-    println!("robot\tmean z^2\tlargest z\tmean off z - P^-1 z\tworst label\tplug-in error / posterior\tlinear pull");
-    for (id, paths) in dynforge_recording::dataset::shards_by_robot(std::path::Path::new(data))? {
+    let by_robot = dynforge_recording::dataset::shards_by_robot(std::path::Path::new(data))
+        .with_context(|| format!("listing the recordings of {data}"))?;
+    println!(
+        "robot\tmean z^2\tlargest z\tposterior mean off z - P^-1 z\tworst label\tplug-in error / posterior\tlinear pull"
+    );
+    for (id, paths) in by_robot {
         if robot.is_some_and(|r| r != id) {
             continue;
         }
         let path = paths.first().with_context(|| format!("robot {id}: no recordings"))?;
         let rec = dynforge_recording::read(path, None)?;
         let truth = rec.labels.with_context(|| format!("{}: no labels", path.display()))?;
-        let z = prior.coordinates(&dynforge_robot::parameters::dynamic_parameters(&rec.model));
+        let z = DVector::from_vec(prior.coordinates(&dynforge_robot::parameters::dynamic_parameters(&rec.model)));
         let (e, _, _) = predictor.windows(&rec)?.1.context("no evidence: not a physics checkpoint")?;
         let post = e.posterior()?;
-        let c = post.covariance();
-        let cov = Covariance((0..r).map(|i| (0..r).map(|j| c[(i, j)]).collect()).collect());
-        let pull = cov.apply(&z);
+        let pull = post.covariance() * &z;
         let off = (0..r).map(|i| (z[i] - pull[i] - post.mean[i]).abs() / post.variance[i].sqrt()).fold(0.0, f64::max);
-        let p = pulls(&prior, &post.mean, &cov, &z, &truth);
+        let p = pulls(&prior, &post, &pull, &truth);
         let worst = (0..NUM_LABELS)
             .max_by(|&a, &b| (p[a].error / p[a].posterior).abs().total_cmp(&(p[b].error / p[b].posterior).abs()))
             .unwrap_or(0);
         let w = &p[worst];
         println!(
             "{id}\t{:.2}\t{:.2}\t{off:.3}\t{}\t{:.2}\t{:.2}",
-            dot(&z, &z) / r as f64,
-            z.iter().fold(0.0f64, |a, v| a.max(v.abs())),
+            z.norm_squared() / r as f64,
+            z.amax(),
             LABELS[worst].name,
             w.error / w.posterior,
             w.linear / w.posterior

@@ -230,20 +230,8 @@ pub fn features(
 /// finite where a link's mass is near zero).
 pub fn label_posterior(prior: &ParameterPrior, post: &Posterior) -> ([f64; NUM_LABELS], [f64; NUM_LABELS]) {
     let r = prior.rank();
-    let at = |z: &[f64]| labels_of_parameters(&prior.parameters(z));
-    let plug_in = at(&post.mean);
-    // d label / d z by central differences (labels are smooth in z where the mass is away from zero).
-    const H: f64 = 1e-4;
-    let mut grad = vec![[0.0; NUM_LABELS]; r];
-    let mut z = post.mean.clone();
-    for (i, g) in grad.iter_mut().enumerate() {
-        z[i] = post.mean[i] + H;
-        let up = at(&z);
-        z[i] = post.mean[i] - H;
-        let down = at(&z);
-        z[i] = post.mean[i];
-        *g = std::array::from_fn(|k| (up[k] - down[k]) / (2.0 * H));
-    }
+    let plug_in = labels_of_parameters(&prior.parameters(&post.mean));
+    let grad = label_gradient(prior, &post.mean);
     let cov = post.covariance();
     let spread = std::array::from_fn(|k| {
         let mut v = 0.0;
@@ -255,6 +243,25 @@ pub fn label_posterior(prior: &ParameterPrior, post: &Posterior) -> ([f64; NUM_L
         v.max(0.0).sqrt()
     });
     (plug_in, spread)
+}
+
+/// `d label / d z` at the prior's coordinates `z`, row `i` for coordinate `i`, by central differences (labels are
+/// smooth in `z` where the mass is away from zero).
+pub fn label_gradient(prior: &ParameterPrior, z: &[f64]) -> Vec<[f64; NUM_LABELS]> {
+    const H: f64 = 1e-4;
+    let at = |z: &[f64]| labels_of_parameters(&prior.parameters(z));
+    let mut z = z.to_vec();
+    (0..z.len())
+        .map(|i| {
+            let centre = z[i];
+            z[i] = centre + H;
+            let up = at(&z);
+            z[i] = centre - H;
+            let down = at(&z);
+            z[i] = centre;
+            std::array::from_fn(|k| (up[k] - down[k]) / (2.0 * H))
+        })
+        .collect()
 }
 
 /// Draws of the prior's coordinates in [`label_deviation`]: its percentiles are then within ~1 % of the
