@@ -99,8 +99,11 @@ fn main() -> std::process::ExitCode {
     // Memory freed is kept for a second before it goes back to the system, not 10 ms: reading an hour-long log
     // decompresses megabyte chunks one after another, and each would otherwise be faulted in and zeroed anew (a
     // quarter of `identify`'s time went to the kernel clearing pages).
-    // SAFETY: setting an option of the allocator, which it reads when it next purges.
-    unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
+    // MIMALLOC_PURGE_DELAY, when set, is mimalloc's own setting and is left to it.
+    if std::env::var_os("MIMALLOC_PURGE_DELAY").is_none() {
+        // SAFETY: setting an option of the allocator, which it reads when it next purges.
+        unsafe { mi_option_set(MI_OPTION_PURGE_DELAY, 1000) };
+    }
     let cli = match Cli::from_arg_matches(&negative_values(Cli::command()).get_matches()) {
         Ok(cli) => cli,
         Err(e) => e.exit(),
