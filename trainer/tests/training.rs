@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use burn::tensor::Device;
 use dynforge_dataset::cache::windows::CachedWindows;
+use dynforge_dataset::examples::Examples;
 use dynforge_dataset::examples::corpus::Corpus;
 use dynforge_dataset::features::JacobianFeatures;
 use dynforge_dataset::metrics::EpochMetrics;
@@ -189,6 +190,10 @@ fn an_interrupted_run_resumes_to_exactly_the_uninterrupted_result() {
     assert!(!b.interrupted);
     let losses = |h: &[EpochMetrics]| h.iter().map(|m| (m.train_loss, m.validation_loss)).collect::<Vec<_>>();
     assert_eq!(losses(&a.history), losses(&b.history));
+    // The interrupted epoch reports its whole cost, both stretches: all its windows over all its seconds.
+    let windows = |h: &[EpochMetrics]| h.iter().map(|m| (m.windows_per_second * m.seconds).round()).collect::<Vec<_>>();
+    assert_eq!(windows(&b.history), windows(&a.history));
+    assert_eq!(windows(&a.history), vec![c.train_len() as f64; 3]);
     // The weights are the same (the files' headers may list metadata in another order): identical predictions.
     let device = Device::default();
     let (_, m1) = Checkpoint::load(whole.path(), &device).unwrap();

@@ -94,6 +94,29 @@ struct TrainState {
     best_epoch: usize,
     history: Vec<EpochMetrics>,
     stopped_early: bool,
+    /// What `epoch` cost before an interruption, so that the resumed epoch reports its whole cost. Absent from
+    /// states saved before it was kept (they resume with nothing spent).
+    #[serde(default)]
+    spent: Spent,
+}
+
+/// Wall-clock and CPU seconds, and windows trained, of the part of an epoch run before an interruption.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+struct Spent {
+    seconds: f64,
+    cpu_seconds: f64,
+    windows: usize,
+}
+
+impl Spent {
+    /// This and the stretch that began at `started` (wall clock, process CPU seconds) and trained `windows`.
+    fn plus(self, (started, cpu_started): (Instant, f64), windows: usize) -> Spent {
+        Spent {
+            seconds: self.seconds + started.elapsed().as_secs_f64(),
+            cpu_seconds: self.cpu_seconds + (process_cpu_seconds() - cpu_started),
+            windows: self.windows + windows,
+        }
+    }
 }
 
 impl TrainState {
@@ -386,13 +409,14 @@ pub fn train<E: Examples>(
             g(examples);
         }
         examples.begin_epoch(l.state.epoch);
-        let trained;
-        (model, trained) = l.steps(examples, model, &mut optim, observer)?;
-        let Some(trained) = trained else {
+        let (trained, finished);
+        (model, trained, finished) = l.steps(examples, model, &mut optim, observer)?;
+        if !finished {
             interrupted = true;
+            l.state.spent = l.state.spent.plus(started, trained);
             save_state(run.dir, &model, &optim, &l.state)?;
             break;
-        };
+        }
         l.end_epoch(examples, &model, (started, trained), observer)?;
         save_state(run.dir, &model, &optim, &l.state)?;
     }
@@ -428,6 +452,7 @@ fn start(
             best_epoch: 0,
             history: Vec::new(),
             stopped_early: false,
+            spent: Spent::default(),
         };
         return Ok((optimizer(cfg), state, checkpoint));
     }
@@ -465,15 +490,15 @@ impl Loop<'_> {
         Schedule::new(cfg.lr, cfg.warmup, cfg.epochs * examples.train_len().div_ceil(cfg.batch))
     }
 
-    /// The optimisation steps of the current epoch from where it stands: the model after them, and the examples
-    /// trained on (`None` when `run.stop` interrupted the epoch).
+    /// The optimisation steps of the current epoch from where it stands: the model after them, the examples
+    /// trained on, and whether the epoch finished (false when `run.stop` interrupted it).
     fn steps(
         &mut self,
         examples: &impl Examples,
         mut model: Network,
         optim: &mut ModuleOptimizer,
         observer: &mut dyn TrainObserver,
-    ) -> Result<(Network, Option<usize>), TrainError> {
+    ) -> Result<(Network, usize, bool), TrainError> {
         let schedule = self.schedule(examples);
         let (cfg, device, state) = (self.run.config, &self.device, &mut self.state);
         let batches = examples.train_len().div_ceil(cfg.batch);
@@ -482,7 +507,7 @@ impl Loop<'_> {
         let mut trained = 0usize;
         for b in state.batch_in_epoch..batches {
             if self.run.stop.load(Ordering::Relaxed) {
-                return Ok((model, None));
+                return Ok((model, trained, false));
             }
             let ids = &order[b * cfg.batch..((b + 1) * cfg.batch).min(order.len())];
             let (value, grads) =
@@ -506,11 +531,12 @@ impl Loop<'_> {
             trained += ids.len();
             observer.step(state.epoch, b + 1, batches, value);
         }
-        Ok((model, Some(trained)))
+        Ok((model, trained, true))
     }
 
     /// Validation after an epoch: its metrics, the checkpoint if it is the best so far, early stopping, the
-    /// metrics files. `started` is the wall clock and process CPU time at the epoch's start, `trained` its examples.
+    /// metrics files. `started` is the wall clock and process CPU time at the start of the epoch's last stretch,
+    /// `trained` the examples of that stretch; the stretches before an interruption are in `state.spent`.
     fn end_epoch(
         &mut self,
         examples: &impl Examples,
@@ -518,8 +544,7 @@ impl Loop<'_> {
         ((started, cpu_started), trained): ((Instant, f64), usize),
         observer: &mut dyn TrainObserver,
     ) -> Result<(), TrainError> {
-        let seconds = started.elapsed().as_secs_f64();
-        let cpu_seconds = process_cpu_seconds() - cpu_started;
+        let spent = std::mem::take(&mut self.state.spent).plus((started, cpu_started), trained);
         let valid = model.valid();
         let (scores, _, val_loss) = evaluate(&valid, examples, &self.device.clone().inner());
         let lr = self.schedule(examples).lr(self.state.step.saturating_sub(1));
@@ -532,9 +557,9 @@ impl Loop<'_> {
             validation_loss: val_loss,
             validation_r2: scores.r2,
             validation_rmse: scores.rmse,
-            windows_per_second: trained as f64 / seconds.max(1e-9),
-            seconds,
-            cpu_seconds,
+            windows_per_second: spent.windows as f64 / spent.seconds.max(1e-9),
+            seconds: spent.seconds,
+            cpu_seconds: spent.cpu_seconds,
         };
         let best = val_loss < state.best_loss;
         if best {
@@ -657,5 +682,27 @@ mod tests {
         // And dropout is on: the loss differs from the deterministic forward pass's.
         let plain = (model.forward(x) - y).square().mean().into_scalar::<f32>() as f64;
         assert!((a.0 - plain).abs() > 1e-3 * plain, "dropout loss {} vs plain {plain}", a.0);
+    }
+
+    #[test]
+    fn a_state_saved_without_the_spent_stretch_resumes_with_nothing_spent() {
+        let state = TrainState {
+            config: TrainConfig::default(),
+            epoch: 2,
+            step: 9,
+            batch_in_epoch: 3,
+            train_loss_sum: 1.5,
+            best_loss: 0.7,
+            best_epoch: 1,
+            history: Vec::new(),
+            stopped_early: false,
+            spent: Spent { seconds: 4.0, cpu_seconds: 7.5, windows: 12 },
+        };
+        let mut json = serde_json::to_value(&state).unwrap();
+        let back: TrainState = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(back, state);
+        json.as_object_mut().unwrap().remove("spent");
+        let old: TrainState = serde_json::from_value(json).unwrap();
+        assert_eq!(old, TrainState { spent: Spent::default(), ..state });
     }
 }
