@@ -411,13 +411,14 @@ pub fn train<E: Examples>(
         examples.begin_epoch(l.state.epoch);
         let (trained, finished);
         (model, trained, finished) = l.steps(examples, model, &mut optim, observer)?;
+        let spent = std::mem::take(&mut l.state.spent).plus(started, trained);
         if !finished {
             interrupted = true;
-            l.state.spent = l.state.spent.plus(started, trained);
+            l.state.spent = spent;
             save_state(run.dir, &model, &optim, &l.state)?;
             break;
         }
-        l.end_epoch(examples, &model, (started, trained), observer)?;
+        l.end_epoch(examples, &model, spent, observer)?;
         save_state(run.dir, &model, &optim, &l.state)?;
     }
     Ok(TrainSummary {
@@ -535,16 +536,14 @@ impl Loop<'_> {
     }
 
     /// Validation after an epoch: its metrics, the checkpoint if it is the best so far, early stopping, the
-    /// metrics files. `started` is the wall clock and process CPU time at the start of the epoch's last stretch,
-    /// `trained` the examples of that stretch; the stretches before an interruption are in `state.spent`.
+    /// metrics files. `spent` is what the whole epoch cost, every stretch of it.
     fn end_epoch(
         &mut self,
         examples: &impl Examples,
         model: &Network,
-        ((started, cpu_started), trained): ((Instant, f64), usize),
+        spent: Spent,
         observer: &mut dyn TrainObserver,
     ) -> Result<(), TrainError> {
-        let spent = std::mem::take(&mut self.state.spent).plus((started, cpu_started), trained);
         let valid = model.valid();
         let (scores, _, val_loss) = evaluate(&valid, examples, &self.device.clone().inner());
         let lr = self.schedule(examples).lr(self.state.step.saturating_sub(1));
